@@ -1,0 +1,41 @@
+"""Radiometric conversions, written once (DESIGN.md "Units").
+
+Mitsuba works in radiance L [W/(m² sr)]. Radiosity B [W/m²] is the power leaving a surface per
+unit area; for a Lambertian surface L = B/π. An emitter of radiance Le has emitted radiosity π·Le.
+A photon carries flux Φ [W]; a bucket of area A that received ΣΦ has irradiance E = ΣΦ/A, and a
+diffuse surface of albedo ρ reflects radiosity ρ·E, i.e. radiance ρ·E/π.
+"""
+import math
+
+INV_PI = 1.0 / math.pi
+
+
+def radiance_from_radiosity(B):
+    """L = B/π for a Lambertian surface."""
+    return B * INV_PI
+
+
+def radiosity_from_radiance(L):
+    """B = π·L for a Lambertian surface (emitted radiosity of an emitter of radiance Le)."""
+    return L * math.pi
+
+
+def irradiance_from_flux(flux, area):
+    """E = ΣΦ / A; zero where the area is zero (degenerate patches receive nothing)."""
+    import numpy as np
+
+    area = np.asarray(area, dtype=np.float64)
+    flux = np.asarray(flux, dtype=np.float64)
+    safe = np.where(area > 0, area, 1.0)
+    shape = (-1,) + (1,) * (flux.ndim - 1)
+    return np.where(area.reshape(shape) > 0, flux / safe.reshape(shape), 0.0)
+
+
+def reflected_radiosity(albedo, E):
+    """B_reflected = ρ·E (diffuse reflection of irradiance E)."""
+    return albedo * E
+
+
+def reflected_radiance(albedo, E):
+    """L = ρ·E/π (diffuse reflection of irradiance E, as radiance)."""
+    return albedo * E * INV_PI
