@@ -1,0 +1,1 @@
+"""References, error metrics, image I/O and the speed-vs-error harness."""

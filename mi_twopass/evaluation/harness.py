@@ -1,0 +1,211 @@
+"""Speed-vs-error harness (DESIGN.md "Measuring speed against error").
+
+For each integrator: render at doubling spp (1, 2, 4, ...), each point with a *fresh* integrator so
+its prepass is paid again and counted; the point's cost is the wall time of ``mi.render`` with the
+prepass, stopped after ``dr.sync_thread()``. Before the timed points, each integrator renders one
+untimed 1-spp warm-up so Dr.Jit's kernel compilation is not charged to the first point (it is the
+same for every integrator). Error is relMSE (ε = 0.01) and FLIP against Mitsuba's ``path`` at high
+spp (cached). Points stop when the next one (about twice the last) would not fit in the budget.
+
+Reported per integrator: the (time, relMSE, FLIP) curve; the equal-time relMSE ratio against
+``path`` measured in the same run (path's error at the method's time, interpolated log-log, over
+the method's); the time to reach relMSE 0.01 (log-log interpolation between bracketing points);
+the error at the largest spp (an upper bound of the bias floor).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..scenefile import load_scene, parse_value
+from . import metrics
+from .reference import DEFAULT_REFERENCE_SPP, reference_image
+
+TARGET_RELMSE = 0.01
+MAX_LANES_PER_PASS = 1 << 22
+
+
+@dataclass
+class Point:
+    spp: int
+    seconds: float
+    relmse: float
+    flip: float
+    mse: float
+    stats: dict = field(default_factory=dict)
+
+
+@dataclass
+class Curve:
+    label: str
+    points: list
+    summary: dict = field(default_factory=dict)
+
+
+def parse_integrator_spec(spec: str) -> tuple[str, dict]:
+    """``"spike_gather:r_thresh=0.1:max_depth=8"`` → ``("spike_gather", {...})``."""
+    name, *rest = spec.split(":")
+    props = {}
+    for item in rest:
+        if "=" not in item:
+            raise ValueError(f"integrator spec {spec!r}: {item!r} is not key=value")
+        k, v = item.split("=", 1)
+        props[k] = parse_value(v)
+    return name, props
+
+
+def make_integrator(spec: str, spp_per_pass: int | None = None):
+    name, props = parse_integrator_spec(spec)
+    d = {"type": name, **props}
+    if name == "path":
+        d.setdefault("max_depth", -1)
+    if spp_per_pass:
+        d["samples_per_pass"] = spp_per_pass
+    return mi.load_dict(d)
+
+
+def timed_render(scene, spec: str, spp: int, seed: int, spp_per_pass: int | None = None):
+    """(image, seconds, stats) of one render with a fresh integrator, prepass included."""
+    dr.sync_thread()
+    t0 = time.perf_counter()
+    integrator = make_integrator(spec, spp_per_pass if spp_per_pass and spp > spp_per_pass else None)
+    image = mi.render(scene, integrator=integrator, spp=spp, seed=seed)
+    image = np.asarray(image, dtype=np.float32)[..., :3]  # numpy conversion waits for the kernel
+    dr.sync_thread()
+    seconds = time.perf_counter() - t0
+    stats = dict(getattr(integrator, "stats", {}) or {})
+    return image, seconds, stats
+
+
+def _loglog_interp(xs, ys, x):
+    """Interpolate y(x) linearly in log-log between the bracketing points; None outside."""
+    for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
+        lo, hi = min(x0, x1), max(x0, x1)
+        if lo <= x <= hi and x0 > 0 and x1 > 0 and y0 > 0 and y1 > 0:
+            if x0 == x1:
+                return min(y0, y1)
+            t = (math.log(x) - math.log(x0)) / (math.log(x1) - math.log(x0))
+            return math.exp(math.log(y0) + t * (math.log(y1) - math.log(y0)))
+    return None
+
+
+def time_to_error(points, target=TARGET_RELMSE):
+    """First time the curve reaches ``target`` relMSE (log-log interpolation), or None."""
+    prev = None
+    for p in points:
+        if p.relmse <= target:
+            if prev is None:
+                return p.seconds
+            return _loglog_interp([prev.relmse, p.relmse], [prev.seconds, p.seconds], target)
+        prev = p
+    return None
+
+
+def summarise(curves: dict, baseline: str = "path", target=TARGET_RELMSE) -> None:
+    """Fill each curve's summary: equal-time ratio, time to target, bias floor."""
+    base = curves.get(baseline)
+    base_t = [p.seconds for p in base.points] if base else []
+    base_e = [p.relmse for p in base.points] if base else []
+    base_tte = time_to_error(base.points, target) if base else None
+    for curve in curves.values():
+        s = curve.summary
+        pts = curve.points
+        s["time_to_target"] = time_to_error(pts, target)
+        s["final_relmse"] = pts[-1].relmse if pts else None
+        s["final_flip"] = pts[-1].flip if pts else None
+        s["final_spp"] = pts[-1].spp if pts else None
+        ratios = []
+        for p in pts:
+            e = _loglog_interp(base_t, base_e, p.seconds) if base else None
+            if e is not None and p.relmse > 0:
+                ratios.append((p.seconds, e / p.relmse))
+        s["equal_time_ratio"] = ratios[-1][1] if ratios else None
+        s["equal_time_at"] = ratios[-1][0] if ratios else None
+        tte = s["time_to_target"]
+        s["speedup_to_target"] = (base_tte / tte) if (base_tte and tte) else None
+
+
+def run_compare(scene_path, integrators, budget: float, params: dict | None = None,
+                ref_spp: int = DEFAULT_REFERENCE_SPP, seed: int = 0, max_spp: int = 1 << 16,
+                log=print) -> dict:
+    """Run the harness; returns {label: Curve} with summaries filled."""
+    params = dict(params or {})
+    reference = reference_image(scene_path, params, spp=ref_spp, verbose=True)
+    scene = load_scene(scene_path, **params)
+    h, w = reference.shape[:2]
+    spp_per_pass = max(1, 2 ** int(math.log2(max(1, MAX_LANES_PER_PASS // (w * h)))))
+    curves = {}
+    for spec in integrators:
+        timed_render(scene, spec, 1, seed + 999_983)  # warm-up: compile kernels, untimed
+        points, spent, spp = [], 0.0, 1
+        while spp <= max_spp:
+            image, seconds, stats = timed_render(scene, spec, spp, seed + spp, spp_per_pass)
+            m = metrics.all_metrics(image, reference)
+            points.append(Point(spp, seconds, m["relmse"], m["flip"], m["mse"], stats))
+            spent += seconds
+            log(f"  {spec:<28} spp {spp:>6}  {seconds:8.3f} s  relMSE {m['relmse']:.3e}  "
+                f"FLIP {m['flip']:.4f}")
+            if spent + 2.2 * seconds > budget:
+                break
+            spp *= 2
+        curves[spec] = Curve(spec, points)
+    summarise(curves, baseline=next((s for s in integrators if s.split(":")[0] == "path"), "path"))
+    return curves
+
+
+def format_table(curves: dict, target=TARGET_RELMSE) -> str:
+    def f(v, fmt):
+        return "—" if v is None else format(v, fmt)
+
+    lines = [f"{'integrator':<28} {'spp':>6} {'time s':>9} {'relMSE':>10} {'FLIP':>7}"]
+    for c in curves.values():
+        for p in c.points:
+            lines.append(f"{c.label:<28} {p.spp:>6} {p.seconds:>9.3f} {p.relmse:>10.3e} {p.flip:>7.4f}")
+    lines.append("")
+    lines.append(f"{'integrator':<28} {'t(relMSE≤' + str(target) + ') s':>18} {'speed-up':>9} "
+                 f"{'equal-time ratio':>17} {'at s':>7} {'relMSE@max spp':>15} {'max spp':>8}")
+    for c in curves.values():
+        s = c.summary
+        lines.append(f"{c.label:<28} {f(s['time_to_target'], '.3f'):>18} "
+                     f"{f(s['speedup_to_target'], '.2f'):>9} {f(s['equal_time_ratio'], '.2f'):>17} "
+                     f"{f(s['equal_time_at'], '.2f'):>7} {f(s['final_relmse'], '.3e'):>15} "
+                     f"{f(s['final_spp'], 'd'):>8}")
+    return "\n".join(lines)
+
+
+def write_plot(curves: dict, path: str, title: str = "") -> None:
+    """Log-log plot of relMSE against time, one line per integrator."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.2), dpi=120)
+    for c in curves.values():
+        t = [p.seconds for p in c.points]
+        e = [max(p.relmse, 1e-12) for p in c.points]
+        ax.loglog(t, e, "o-", label=c.label)
+    ax.axhline(TARGET_RELMSE, color="gray", ls=":", lw=1, label=f"relMSE {TARGET_RELMSE}")
+    ax.set_xlabel("time (s, prepass included)")
+    ax.set_ylabel("relMSE")
+    ax.set_title(title, fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def write_json(curves: dict, path: str, meta: dict | None = None) -> None:
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    data = {"meta": meta or {}, "curves": {k: asdict(c) for k, c in curves.items()}}
+    with open(path, "w") as f:
+        json.dump(data, f, indent=1, default=float)

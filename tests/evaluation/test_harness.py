@@ -1,0 +1,50 @@
+"""Harness bookkeeping (interpolation, time to target, equal-time ratio) and image I/O."""
+import numpy as np
+import pytest
+
+from mi_twopass.evaluation import harness, images
+from mi_twopass.evaluation.harness import Curve, Point
+
+
+def curve(label, times, errors):
+    return Curve(label, [Point(2**i, t, e, 0.1, e) for i, (t, e) in enumerate(zip(times, errors))])
+
+
+def test_time_to_error_loglog():
+    # error ∝ 1/t: 0.04 at 1 s, 0.02 at 2 s, 0.005 at 8 s → 0.01 at exactly 4 s
+    c = curve("path", [1, 2, 8], [0.04, 0.02, 0.005])
+    assert harness.time_to_error(c.points, 0.01) == pytest.approx(4.0)
+    assert harness.time_to_error(c.points, 1e-4) is None
+    assert harness.time_to_error(c.points, 0.1) == 1  # already below at the first point
+
+
+def test_equal_time_ratio_and_speedup():
+    path = curve("path", [1, 2, 4, 8], [0.08, 0.04, 0.02, 0.01])
+    fast = curve("x", [1, 2, 4], [0.02, 0.01, 0.005])  # 4× lower error at equal time
+    curves = {"path": path, "x": fast}
+    harness.summarise(curves)
+    assert curves["x"].summary["equal_time_ratio"] == pytest.approx(4.0)
+    assert curves["path"].summary["equal_time_ratio"] == pytest.approx(1.0)
+    assert curves["x"].summary["time_to_target"] == pytest.approx(2.0)
+    assert curves["x"].summary["speedup_to_target"] == pytest.approx(4.0)
+    assert curves["x"].summary["final_relmse"] == 0.005
+    table = harness.format_table(curves)
+    assert "4.00" in table and "path" in table
+
+
+def test_spec_parsing():
+    assert harness.parse_integrator_spec("path") == ("path", {})
+    assert harness.parse_integrator_spec("a:r_thresh=0.5:max_depth=3:mode=x") == (
+        "a", {"r_thresh": 0.5, "max_depth": 3, "mode": "x"})
+    with pytest.raises(ValueError):
+        harness.parse_integrator_spec("a:oops")
+
+
+def test_exr_roundtrip_and_png(tmp_path):
+    img = np.random.default_rng(0).uniform(0, 4, (5, 7, 3)).astype(np.float32)
+    p = str(tmp_path / "x.exr")
+    images.write_exr(p, img)
+    assert np.array_equal(images.read_exr(p), img)
+    images.write_png(str(tmp_path / "x.png"), img)
+    assert (tmp_path / "x.png").stat().st_size > 0
+    assert images.srgb_tonemap(np.array([0.0, 1.0, 10.0])).tolist() == [0, 255, 255]
