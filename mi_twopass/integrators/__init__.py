@@ -12,7 +12,9 @@ import importlib
 import sys
 
 #: plugin name -> module. Only integrators that exist are listed (no placeholders).
-PLUGINS = {}
+PLUGINS = {
+    "radiosity_gather": "mi_twopass.integrators.radiosity_gather",
+}
 
 #: modules holding variant-bound classes, imported before the plugins, in this order.
 _SHARED_MODULES = ("mi_twopass.integrators.base",)

@@ -1,0 +1,861 @@
+"""Diffuse patches of a Mitsuba scene: the coarse mesh of the radiosity prepass.
+
+Zimmerman & Shirley (1995) §3.3 step 1 (after GSII, §2.5): "simplify surfaces and create a coarse
+mesh for the radiosity solution". We build that mesh automatically from a loaded ``mi.Scene`` under
+a patch budget ``max_patches``:
+
+* **Mesh triangles** whose area is at least half the target patch area ``a`` become patches of
+  their own; a triangle of area ``A ≥ a`` is cut into ``n²`` congruent sub-triangles
+  (``n = round(√(A/a))``, uniform barycentric subdivision), so the sub-triangle a hit lies in
+  follows from its barycentrics in O(1) (:func:`_subtriangle_index`).
+* **Small triangles** are merged: triangles of one shape whose centroids fall into the same cell
+  of a grid of spacing ``√a`` and whose normals share a dominant axis (6 bins) form one patch. A
+  million-triangle mesh so becomes ~(its area / a) patches.
+* **Analytic shapes** (sphere, disk, cylinder) are cut into equal-area cells of their (u, v)
+  parameterisation (a hit's cell follows from ``si.uv`` in O(1)); each cell is one patch, kept for
+  sampling as a finer grid of flat triangles. In Mitsuba 3.9.1 ``rectangle`` and ``cube`` are
+  meshes. Other shape types (curves, SDF grids, ellipsoids, instances) get no patch: they are
+  reported in a warning and :meth:`Patches.lookup` returns the invalid id there.
+* ``a`` is the smallest target area (found by bisection) whose patch count fits ``max_patches``,
+  so patch areas are roughly uniform over the scene; the budget can only be exceeded by a scene
+  with more shapes than patches (each supported shape needs a few patches: a warning says so).
+
+Patches are one-sided, like Mitsuba's BSDFs: the *front* of a patch is the side its shape's
+normal (``si.n``, flip_normals included) points to. A shape whose BSDF is diffuse on both sides
+(``twosided``) gets a second, *back* patch for every front patch, with the reversed normal;
+a hit on the back of a one-sided shape has no patch (its BSDF is black there).
+
+Patch ids are laid out per shape: ``[front patches][back patches]``; the id ``N`` (``count``)
+means "no patch" and every Dr.Jit table has a zero entry at ``N`` so gathers need no mask.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+#: shape kinds of the lookup table
+KIND_NONE, KIND_MESH, KIND_SPHERE, KIND_DISK, KIND_CYLINDER = 0, 1, 2, 3, 4
+INVALID = 0xFFFFFFFF
+
+#: triangles below this fraction of the target area are merged into clusters
+MERGE_FRACTION = 0.5
+#: property samples (albedo, emitted radiance) averaged per patch
+SAMPLES_PER_PATCH = 16
+#: voxel coordinates of the clustering grid are clamped to this many bits per axis
+_VOXEL_BITS = 19
+
+
+def _analytic_kind(shape) -> int:
+    """KIND_SPHERE / KIND_DISK / KIND_CYLINDER, or KIND_NONE (looked up in the active variant)."""
+    kinds = {int(mi.ShapeType.Sphere): KIND_SPHERE, int(mi.ShapeType.Disk): KIND_DISK,
+             int(mi.ShapeType.Cylinder): KIND_CYLINDER}
+    return kinds.get(int(shape.shape_type()), KIND_NONE)
+
+
+# ----------------------------------------------------------------------------------------------
+# Geometry extraction (numpy bookkeeping, once per scene)
+
+
+@dataclass
+class _ShapeGeom:
+    index: int  # position in scene.shapes()
+    shape: object
+    reg_id: int  # registry id: dr.reinterpret_array(mi.UInt32, si.shape)
+    kind: int
+    area: float
+    flip: bool
+    two_sided: bool
+    diffuse: bool
+    # meshes (world space, float64)
+    V: np.ndarray | None = None
+    F: np.ndarray | None = None
+    face_area: np.ndarray | None = None
+    face_normal: np.ndarray | None = None  # oriented (flip_normals applied)
+    face_centroid: np.ndarray | None = None
+    # analytic shapes
+    to_world: np.ndarray | None = None  # 4x4
+    normal_matrix: np.ndarray | None = None  # 3x3 inverse transpose
+
+
+def _bsdf_sides(shape):
+    """(diffuse, two_sided) of a shape's BSDF from its flags."""
+    bsdf = shape.bsdf()
+    if bsdf is None:
+        return False, False
+    flags = int(bsdf.flags())
+    diffuse = bool(flags & int(mi.BSDFFlags.DiffuseReflection))
+    two_sided = diffuse and bool(flags & int(mi.BSDFFlags.BackSide))
+    return diffuse, two_sided
+
+
+def _registry_id(shape) -> int:
+    return int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+
+
+def _extract_shapes(scene):
+    geoms, skipped = [], []
+    for index, shape in enumerate(scene.shapes()):
+        diffuse, two_sided = _bsdf_sides(shape)
+        bsdf = shape.bsdf()
+        scatters = (int(mi.BSDFFlags.Diffuse) | int(mi.BSDFFlags.Glossy)
+                    | int(mi.BSDFFlags.DeltaReflection) | int(mi.BSDFFlags.DeltaTransmission))
+        if bsdf is not None and not int(bsdf.flags()) & scatters and not shape.is_emitter():
+            continue  # invisible (null BSDF): nothing to model
+        common = dict(index=index, shape=shape, reg_id=_registry_id(shape),
+                      area=0.0,
+                      flip=bool(shape.has_flipped_normals()), two_sided=two_sided,
+                      diffuse=diffuse)
+        if shape.is_mesh():
+            V = np.array(shape.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+            F = np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+            if F.shape[0] == 0:
+                continue
+            p0, p1, p2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+            cross = np.cross(p1 - p0, p2 - p0)
+            double = np.linalg.norm(cross, axis=1)
+            normal = np.where(double[:, None] > 0, cross / np.where(double > 0, double, 1)[:, None],
+                              np.array([0.0, 0.0, 1.0]))
+            if common["flip"]:
+                normal = -normal
+            common["area"] = float(0.5 * double.sum())
+            geoms.append(_ShapeGeom(kind=KIND_MESH, V=V, F=F, face_area=0.5 * double,
+                                    face_normal=normal, face_centroid=(p0 + p1 + p2) / 3.0,
+                                    **common))
+        elif _analytic_kind(shape) != KIND_NONE:
+            tw = mi.traverse(shape)["to_world"]
+            M = np.array(tw.matrix, dtype=np.float64).reshape(4, 4)
+            NM = np.array(tw.inverse_transpose, dtype=np.float64).reshape(4, 4)[:3, :3]
+            common["area"] = float(np.asarray(shape.surface_area()).ravel()[0])
+            geoms.append(_ShapeGeom(kind=_analytic_kind(shape), to_world=M,
+                                    normal_matrix=NM, **common))
+        else:
+            skipped.append(f"{shape.id() or '<unnamed>'} ({shape.class_name()})")
+    if skipped:
+        warnings.warn("build_patches: no patches for unsupported shapes " + ", ".join(skipped)
+                      + "; radiosity lookups there return no patch (tessellate them as meshes "
+                      "to include them)", stacklevel=3)
+    return geoms
+
+
+# ----------------------------------------------------------------------------------------------
+# Layout for a target patch area a
+
+
+def _sides(g):
+    return 2 if g.two_sided else 1
+
+
+def _grid_dims(g, a):
+    """(nu, nv): cells along the periodic parameter s and along t of an analytic shape."""
+    cells = max(g.area / a, 1.0)
+    if g.kind == KIND_SPHERE:
+        nv = max(2, int(round(math.sqrt(cells / 2))))
+        return 2 * nv, nv
+    if g.kind == KIND_DISK:
+        nr = max(1, int(round(math.sqrt(cells / (2 * math.pi)))))
+        return max(4, int(round(cells / nr))), nr
+    # cylinder: circumference C, length L
+    M = g.to_world[:3, :3]
+    radius = 0.5 * (np.linalg.norm(M[:, 0]) + np.linalg.norm(M[:, 1]))
+    length = max(np.linalg.norm(M[:, 2]), 1e-30)
+    C = 2 * math.pi * radius
+    nu = max(4, int(round(math.sqrt(cells * C / length))))
+    return nu, max(1, int(round(cells / nu)))
+
+
+def _mesh_split(g, a, origin):
+    """Subdivision resolution of big faces and cluster ids of small ones at target area a."""
+    big = g.face_area >= MERGE_FRACTION * a
+    res = np.maximum(1, np.rint(np.sqrt(g.face_area / a))).astype(np.int64)
+    res[~big] = 0
+    small = np.nonzero(~big)[0]
+    if small.size:
+        h = math.sqrt(a)
+        vox = np.floor((g.face_centroid[small] - origin) / h).astype(np.int64)
+        vox = np.clip(vox, 0, (1 << _VOXEL_BITS) - 1)
+        n = g.face_normal[small]
+        axis = np.argmax(np.abs(n), axis=1)
+        nbin = 2 * axis + (n[np.arange(small.size), axis] < 0)
+        key = (((vox[:, 0] << _VOXEL_BITS) | vox[:, 1]) << _VOXEL_BITS | vox[:, 2]) << 3 | nbin
+        _, cluster = np.unique(key, return_inverse=True)
+        n_clusters = int(cluster.max()) + 1
+    else:
+        cluster, n_clusters = np.zeros(0, np.int64), 0
+    return res, small, cluster.reshape(-1), n_clusters
+
+
+def _count(geoms, a, origin):
+    total = 0
+    for g in geoms:
+        if g.kind == KIND_MESH:
+            res, _, _, n_clusters = _mesh_split(g, a, origin)
+            front = int((res * res).sum()) + n_clusters
+        else:
+            nu, nv = _grid_dims(g, a)
+            front = nu * nv
+        total += front * _sides(g)
+    return total
+
+
+def _choose_target_area(geoms, max_patches, origin):
+    """Smallest target area a (geometric bisection) whose patch count fits the budget."""
+    total_area = sum(g.area for g in geoms)
+    if total_area <= 0:
+        total_area = 1.0
+    hi = 4.0 * total_area
+    if _count(geoms, hi, origin) > max_patches:
+        warnings.warn(f"build_patches: the scene needs {_count(geoms, hi, origin)} patches at "
+                      f"least (a few per shape), more than max_patches={max_patches}",
+                      stacklevel=3)
+        return hi
+    lo = total_area / max_patches / 16.0
+    if _count(geoms, lo, origin) <= max_patches:
+        return lo
+    for _ in range(24):
+        mid = math.sqrt(lo * hi)
+        if _count(geoms, mid, origin) <= max_patches:
+            hi = mid
+        else:
+            lo = mid
+        if hi / lo < 1.005:
+            break
+    return hi
+
+
+# ----------------------------------------------------------------------------------------------
+# Barycentric subdivision: n² sub-triangles of a triangle, indexed from (b1, b2) in O(1)
+
+
+def _subtriangle_corners(n):
+    """Barycentric (b1, b2) corners (n², 3, 2) of the sub-triangles, in lookup order.
+
+    Lower triangle (i, j), i + j ≤ n−1: (i, j), (i+1, j), (i, j+1), index rowoff(i) + j with
+    rowoff(i) = i·n − i(i−1)/2. Upper triangle (i, j), i + j ≤ n−2: (i+1, j), (i+1, j+1), (i, j+1),
+    index n(n+1)/2 + i·(n−1) − i(i−1)/2 + j. Both keep the winding of the parent triangle."""
+    corners = []
+    for i in range(n):
+        for j in range(n - i):
+            corners.append([(i, j), (i + 1, j), (i, j + 1)])
+    for i in range(n - 1):
+        for j in range(n - 1 - i):
+            corners.append([(i + 1, j), (i + 1, j + 1), (i, j + 1)])
+    return np.array(corners, dtype=np.float64) / n
+
+
+def _subtriangle_index_np(b1, b2, n):
+    """numpy twin of :func:`_subtriangle_index` (for tests and checks)."""
+    u, v = b1 * n, b2 * n
+    i = np.clip(np.floor(u), 0, n - 1)
+    j = np.clip(np.floor(v), 0, np.maximum(n - 1 - i, 0))
+    upper = (u - i + v - j > 1) & (i + j <= n - 2)
+    lower_idx = i * n - i * (i - 1) // 2 + j
+    upper_idx = n * (n + 1) // 2 + i * (n - 1) - i * (i - 1) // 2 + j
+    return np.where(upper, upper_idx, lower_idx).astype(np.int64)
+
+
+def _subtriangle_index(b1, b2, n):
+    """Sub-triangle of a uniform n×n barycentric subdivision containing (b1, b2) (Dr.Jit)."""
+    nf = mi.Float(n)
+    u, v = b1 * nf, b2 * nf
+    i = dr.clip(dr.floor(u), 0.0, nf - 1.0)
+    j = dr.clip(dr.floor(v), 0.0, dr.maximum(nf - 1.0 - i, 0.0))
+    upper = (u - i + v - j > 1.0) & (i + j <= nf - 2.0)
+    ii, jj = mi.UInt32(i), mi.UInt32(j)
+    rowoff = ii * n - (ii * (ii - 1)) // 2  # ii(ii-1) is even; wraps harmlessly at ii = 0
+    rowoff = dr.select(ii == 0, 0, rowoff)
+    lower_idx = rowoff + jj
+    upper_off = (n * (n + 1)) // 2 + ii * (n - 1) - dr.select(ii == 0, 0, (ii * (ii - 1)) // 2)
+    return dr.select(upper, upper_off + jj, lower_idx)
+
+
+# ----------------------------------------------------------------------------------------------
+# Analytic parameterisations: (s, t) ∈ [0,1]² → local point and normal; equal area in (s, t)
+
+
+def _param_local(kind, s, t):
+    phi = 2 * np.pi * s
+    cp, sp = np.cos(phi), np.sin(phi)
+    if kind == KIND_SPHERE:  # uv = (φ/2π, θ/π); t = (1 − cos θ)/2
+        ct = 1 - 2 * t
+        st = np.sqrt(np.maximum(0.0, 1 - ct * ct))
+        p = np.stack([st * cp, st * sp, ct], axis=-1)
+        return p, p.copy()
+    if kind == KIND_DISK:  # uv = (r, φ/2π); t = r²
+        r = np.sqrt(np.clip(t, 0, 1))
+        p = np.stack([r * cp, r * sp, np.zeros_like(r)], axis=-1)
+        return p, np.broadcast_to(np.array([0.0, 0.0, 1.0]), p.shape).copy()
+    # cylinder: uv = (φ/2π, z)
+    p = np.stack([cp, sp, t], axis=-1)
+    return p, np.stack([cp, sp, np.zeros_like(t)], axis=-1)
+
+
+def _param_world(g, s, t):
+    p, n = _param_local(g.kind, s, t)
+    P = p @ g.to_world[:3, :3].T + g.to_world[:3, 3]
+    N = n @ g.normal_matrix.T
+    N /= np.maximum(np.linalg.norm(N, axis=-1, keepdims=True), 1e-300)
+    return P, (-N if g.flip else N)
+
+
+def _uv_to_st(kind, uv):
+    """Dr.Jit: a hit's (s, t) cell coordinates from ``si.uv`` (conventions of Mitsuba 3.9)."""
+    s = dr.select(kind == KIND_DISK, uv.y, uv.x)
+    t_sphere = 0.5 * (1.0 - dr.cos(dr.pi * uv.y))
+    t = dr.select(kind == KIND_SPHERE, t_sphere, dr.select(kind == KIND_DISK, uv.x * uv.x, uv.y))
+    return s, t
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Patches:
+    """The patches of a scene (numpy), with Dr.Jit tables for lookups and sampling.
+
+    ``N = count`` patches; ``T`` triangles (``tri_*``), sorted by patch, wound so that
+    ``cross(v1 − v0, v2 − v0)`` points to the patch's side. ``area`` is the true surface area
+    (for analytic shapes the cell area of the curved surface, for meshes the sum of triangles).
+    """
+
+    area: np.ndarray  # (N,) m²
+    center: np.ndarray  # (N, 3)
+    normal: np.ndarray  # (N, 3) unit, pointing to the patch's side
+    albedo: np.ndarray  # (N, 3) diffuse reflectance, 0 where not is_diffuse
+    is_diffuse: np.ndarray  # (N,) bool
+    Le: np.ndarray  # (N, 3) emitted radiance (W/m²/sr), front side of area emitters
+    shape_index: np.ndarray  # (N,) index into scene.shapes()
+    side: np.ndarray  # (N,) 0 front, 1 back
+    tri_vertices: np.ndarray  # (T, 3, 3)
+    tri_patch: np.ndarray  # (T,)
+    tri_normal: np.ndarray  # (T, 3) unit (the patch normal where a triangle is degenerate)
+    target_area: float
+    max_patches: int
+    bbox_min: np.ndarray
+    bbox_max: np.ndarray
+    shape_names: list = field(default_factory=list)
+    _tables: dict = field(default_factory=dict, repr=False)
+
+    # -- sizes -------------------------------------------------------------------------------
+    @property
+    def count(self) -> int:
+        return int(self.area.shape[0])
+
+    N = count
+
+    @property
+    def diagonal(self) -> float:
+        return float(np.linalg.norm(self.bbox_max - self.bbox_min))
+
+    @property
+    def nbytes(self) -> int:
+        total = sum(v.nbytes for v in self.__dict__.values() if isinstance(v, np.ndarray))
+        for v in self._tables.values():
+            if hasattr(v, "__len__") and not isinstance(v, (int, float)):
+                total += _dr_nbytes(v)
+        return int(total)
+
+    # -- Dr.Jit queries ----------------------------------------------------------------------
+    def lookup(self, si, active=True):
+        """Patch hit by ``si`` (``mi.UInt32``), ``count`` where none (miss, unsupported shape,
+        back of a one-sided surface). O(1) gathers: shape id → kind; meshes: face table and, for
+        subdivided faces, the sub-triangle from barycentrics; analytic shapes: the (u, v) cell."""
+        t = self._tables
+        N = self.count
+        rid = dr.reinterpret_array(mi.UInt32, si.shape)
+        valid = mi.Bool(active) & si.is_valid() & (rid < t["n_reg"])
+        rid = dr.select(valid, rid, 0)
+        kind = dr.gather(mi.UInt32, t["kind"], rid, valid)
+        valid &= kind != KIND_NONE
+        back = dr.dot(si.to_world(si.wi), si.n) < 0
+        back_offset = dr.gather(mi.UInt32, t["back_offset"], rid, valid)
+        valid &= ~back | (back_offset > 0)
+
+        is_mesh = valid & (kind == KIND_MESH)
+        face = dr.gather(mi.UInt32, t["face_offset"], rid, is_mesh) + si.prim_index
+        face_patch = dr.gather(mi.UInt32, t["face_patch"], face, is_mesh)
+        sub = dr.gather(mi.UInt32, t["face_sub"], face, is_mesh)
+        has_sub = is_mesh & (sub != INVALID)
+        res = dr.gather(mi.UInt32, t["sub_res"], sub, has_sub)
+        v0 = dr.gather(mi.Point3f, t["sub_v0"], sub, has_sub)
+        g1 = dr.gather(mi.Vector3f, t["sub_g1"], sub, has_sub)
+        g2 = dr.gather(mi.Vector3f, t["sub_g2"], sub, has_sub)
+        dp = si.p - v0
+        local = _subtriangle_index(dr.dot(dp, g1), dr.dot(dp, g2), res)
+        mesh_patch = face_patch + dr.select(has_sub, local, 0)
+
+        is_grid = valid & (kind != KIND_MESH)
+        base = dr.gather(mi.UInt32, t["grid_base"], rid, is_grid)
+        nu = dr.gather(mi.UInt32, t["grid_nu"], rid, is_grid)
+        nv = dr.gather(mi.UInt32, t["grid_nv"], rid, is_grid)
+        s, tt = _uv_to_st(kind, si.uv)
+        i_s = mi.UInt32(dr.clip(dr.floor(s * mi.Float(nu)), 0.0, mi.Float(nu) - 1.0))
+        i_t = mi.UInt32(dr.clip(dr.floor(tt * mi.Float(nv)), 0.0, mi.Float(nv) - 1.0))
+        grid_patch = base + i_t * nu + i_s
+
+        patch = dr.select(is_mesh, mesh_patch, grid_patch) + dr.select(back, back_offset, 0)
+        return dr.select(valid, patch, N)
+
+    def is_diffuse_at(self, si, active=True):
+        """``mi.Bool``: ``si`` lies on a diffuse patch (its reflected radiosity is meaningful)."""
+        return dr.gather(mi.Bool, self._tables["patch_is_diffuse"], self.lookup(si, active))
+
+    def gather(self, name, patch_ids, active=True):
+        """Per-patch data by id in Dr.Jit: ``name`` ∈ {"area" (mi.Float), "center"
+        (mi.Point3f), "normal" (mi.Vector3f), "albedo", "Le" (mi.Color3f), "is_diffuse"
+        (mi.Bool)}; the invalid id ``count`` gives zeros."""
+        table = self._tables["patch_" + name]
+        return dr.gather(type(table), table, patch_ids, active)
+
+    def albedo_of(self, patch_ids, active=True):
+        return self.gather("albedo", patch_ids, active)
+
+    def sample_points(self, patch_ids, u2, active=True):
+        """Uniform point on each patch (by area over its triangles): ``(p, n, pdf_area)``.
+
+        ``n`` is the normal of the sampled triangle on the patch's side; ``pdf_area`` is w.r.t.
+        the area of the patch's flat triangles (for analytic shapes slightly less than the curved
+        ``area``), and 0 for zero-area patches and invalid ids."""
+        t = self._tables
+        pid = mi.UInt32(patch_ids)
+        active = mi.Bool(active) & (pid < self.count)
+        pid = dr.select(active, pid, 0)
+        u = mi.Point2f(u2)
+        start = dr.gather(mi.UInt32, t["patch_tri_start"], pid, active)
+        cnt = dr.gather(mi.UInt32, t["patch_tri_count"], pid, active)
+        tri_patch, cdf = t["tri_patch"], t["tri_cdf"]
+
+        def pred(i):  # (tri_patch, cdf) <= (pid, u.x) lexicographically
+            tp = dr.gather(mi.UInt32, tri_patch, i, active)
+            c = dr.gather(mi.Float, cdf, i, active)
+            return (tp < pid) | ((tp == pid) & (c <= u.x))
+
+        tri = dr.binary_search(0, t["n_tri"] - 1, pred)
+        tri = dr.clip(tri, start, start + dr.maximum(cnt, 1) - 1)
+        c0 = dr.select(tri > start, dr.gather(mi.Float, cdf, tri - 1, active & (tri > start)), 0.0)
+        c1 = dr.gather(mi.Float, cdf, tri, active)
+        ux = dr.clip((u.x - c0) / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0 - 2.0 ** -24)
+        b = mi.warp.square_to_uniform_triangle(mi.Point2f(ux, u.y))
+        v0 = dr.gather(mi.Point3f, t["tri_v0"], tri, active)
+        e1 = dr.gather(mi.Vector3f, t["tri_e1"], tri, active)
+        e2 = dr.gather(mi.Vector3f, t["tri_e2"], tri, active)
+        p = v0 + e1 * b.x + e2 * b.y
+        n = dr.gather(mi.Vector3f, t["tri_n"], tri, active)
+        pdf = dr.gather(mi.Float, t["patch_inv_tri_area"], pid, active)
+        return p, n, dr.select(active, pdf, 0.0)
+
+    def ray_epsilon(self, p):
+        """Scene-relative ray offset at ``p`` (Dr.Jit): 1e-5·(bbox diagonal + max|p|)."""
+        return 1e-5 * (mi.Float(self.diagonal) + dr.max(dr.abs(p)))
+
+
+def _dr_nbytes(v):
+    try:
+        width = dr.width(v)
+    except Exception:  # noqa: BLE001
+        return 0
+    size = dr.size_v(v) if dr.size_v(v) > 0 else 1
+    itemsize = 8 if dr.type_v(v) in (dr.VarType.Float64, dr.VarType.UInt64, dr.VarType.Int64) \
+        else 1 if dr.type_v(v) == dr.VarType.Bool else 4
+    return int(width * size * itemsize)
+
+
+# ----------------------------------------------------------------------------------------------
+# Building
+
+
+def build_patches(scene, max_patches: int = 4096, seed: int = 0) -> Patches:
+    """Patches of ``scene`` under the budget ``max_patches`` (see the module docstring).
+
+    ``seed`` drives the points at which albedo and emitted radiance are averaged."""
+    if int(max_patches) < 1:
+        raise ValueError(f"max_patches={max_patches}: must be >= 1")
+    max_patches = int(max_patches)
+    bbox = scene.bbox()
+    bmin = np.array([bbox.min.x, bbox.min.y, bbox.min.z], dtype=np.float64).ravel()
+    bmax = np.array([bbox.max.x, bbox.max.y, bbox.max.z], dtype=np.float64).ravel()
+    if not (np.all(np.isfinite(bmin)) and np.all(np.isfinite(bmax))):
+        bmin, bmax = np.zeros(3), np.zeros(3)
+    geoms = _extract_shapes(scene)
+    a = _choose_target_area(geoms, max_patches, bmin) if geoms else 1.0
+
+    parts = []  # per shape: dict of arrays
+    base = 0
+    for g in geoms:
+        part = _build_mesh(g, a, bmin) if g.kind == KIND_MESH else _build_grid(g, a)
+        part["geom"], part["base"] = g, base
+        base += part["K"] * _sides(g)
+        parts.append(part)
+    N = base
+
+    # -- patches and triangles, front then back per shape --
+    area, center, normal, shape_index, side = [], [], [], [], []
+    tv, tp, tn = [], [], []
+    for part in parts:
+        g, K, b0 = part["geom"], part["K"], part["base"]
+        for sd in range(_sides(g)):
+            sign = -1.0 if sd else 1.0
+            off = b0 + sd * K
+            area.append(part["area"])
+            center.append(part["center"])
+            normal.append(sign * part["normal"])
+            shape_index.append(np.full(K, g.index, np.int64))
+            side.append(np.full(K, sd, np.int8))
+            verts = part["tri_v"] if sd == 0 else part["tri_v"][:, [0, 2, 1]]
+            tv.append(verts)
+            tp.append(part["tri_local"] + off)
+            tn.append(sign * part["tri_n"])
+    if N:
+        area = np.concatenate(area)
+        center, normal = np.concatenate(center), np.concatenate(normal)
+        shape_index, side = np.concatenate(shape_index), np.concatenate(side)
+        tri_v, tri_p, tri_n = np.concatenate(tv), np.concatenate(tp), np.concatenate(tn)
+    else:
+        area = np.zeros(0)
+        center = normal = np.zeros((0, 3))
+        shape_index, side = np.zeros(0, np.int64), np.zeros(0, np.int8)
+        tri_v, tri_p, tri_n = np.zeros((0, 3, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
+    order = np.argsort(tri_p, kind="stable")
+    tri_v, tri_p, tri_n = tri_v[order], tri_p[order], tri_n[order]
+
+    albedo, is_diffuse, Le = _evaluate_properties(scene, parts, N, seed)
+
+    patches = Patches(
+        area=area.astype(np.float64), center=center, normal=normal, albedo=albedo,
+        is_diffuse=is_diffuse, Le=Le, shape_index=shape_index, side=side,
+        tri_vertices=tri_v.astype(np.float32), tri_patch=tri_p.astype(np.uint32),
+        tri_normal=tri_n.astype(np.float32), target_area=float(a), max_patches=max_patches,
+        bbox_min=bmin, bbox_max=bmax,
+        shape_names=[s.id() for s in scene.shapes()])
+    patches._tables = _make_tables(patches, parts, tri_v, tri_p, tri_n)
+    return patches
+
+
+def _build_mesh(g, a, origin):
+    res, small, cluster, n_clusters = _mesh_split(g, a, origin)
+    V, F = g.V, g.F
+    p0, p1, p2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    nf = F.shape[0]
+    face_patch = np.zeros(nf, np.int64)
+    face_sub = np.full(nf, INVALID, np.int64)
+
+    big = np.nonzero(res > 0)[0]
+    sizes = res[big] ** 2
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]) if big.size else np.zeros(0, np.int64)
+    n_big = int(sizes.sum())
+    face_patch[big] = starts
+    face_patch[small] = n_big + cluster
+    K = n_big + n_clusters
+
+    area = np.zeros(K)
+    center = np.zeros((K, 3))
+    normal = np.zeros((K, 3))
+    tri_v, tri_local, tri_n, tri_face, tri_bary = [], [], [], [], []
+
+    # subdivided (and single) big faces
+    for n in np.unique(res[big]):
+        n = int(n)
+        sel = big[res[big] == n]
+        corners = _subtriangle_corners(n)  # (n², 3, 2)
+        b1, b2 = corners[..., 0], corners[..., 1]
+        e1, e2 = p1[sel] - p0[sel], p2[sel] - p0[sel]
+        P = (p0[sel][:, None, None, :] + b1[None, :, :, None] * e1[:, None, None, :]
+             + b2[None, :, :, None] * e2[:, None, None, :])  # (f, n², 3, 3)
+        ids = face_patch[sel][:, None] + np.arange(n * n)[None, :]
+        area[ids] = (g.face_area[sel] / (n * n))[:, None]
+        center[ids] = P.mean(axis=2)
+        normal[ids] = g.face_normal[sel][:, None, :]
+        tri_v.append(P.reshape(-1, 3, 3))
+        tri_local.append(ids.reshape(-1))
+        tri_n.append(np.repeat(g.face_normal[sel], n * n, axis=0))
+        tri_face.append(np.repeat(sel, n * n))
+        tri_bary.append(np.broadcast_to(corners, (sel.size,) + corners.shape).reshape(-1, 3, 2))
+        if n > 1:
+            face_sub[sel] = -1  # marked; filled in _make_tables
+    # clusters of small faces
+    if small.size:
+        cid = n_big + cluster
+        A = g.face_area[small]
+        area_c = np.bincount(cluster, weights=A, minlength=n_clusters)
+        cnt_c = np.bincount(cluster, minlength=n_clusters)
+        for k in range(3):
+            wsum = np.bincount(cluster, weights=A * g.face_centroid[small, k], minlength=n_clusters)
+            msum = np.bincount(cluster, weights=g.face_centroid[small, k], minlength=n_clusters)
+            center[n_big:, k] = np.where(area_c > 0, wsum / np.where(area_c > 0, area_c, 1),
+                                         msum / np.maximum(cnt_c, 1))
+            normal[n_big:, k] = np.bincount(cluster, weights=A * g.face_normal[small, k],
+                                            minlength=n_clusters)
+        area[n_big:] = area_c
+        tri_v.append(np.stack([p0[small], p1[small], p2[small]], axis=1))
+        tri_local.append(cid)
+        tri_n.append(g.face_normal[small])
+        tri_face.append(small)
+        tri_bary.append(np.broadcast_to(np.array([[0.0, 0], [1, 0], [0, 1]]),
+                                        (small.size, 3, 2)))
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(length > 1e-12, normal / np.maximum(length, 1e-300), [0.0, 0.0, 1.0])
+
+    tri_v = np.concatenate(tri_v)
+    if g.flip:  # wind triangles along the flipped normal
+        tri_v = tri_v[:, [0, 2, 1]]
+        tri_bary = [b[:, [0, 2, 1]] for b in tri_bary]
+    return dict(kind=KIND_MESH, K=K, area=area, center=center, normal=normal, tri_v=tri_v,
+                tri_local=np.concatenate(tri_local), tri_n=np.concatenate(tri_n),
+                tri_face=np.concatenate(tri_face), tri_bary=np.concatenate(tri_bary),
+                face_patch=face_patch, face_sub=face_sub, res=res)
+
+
+def _build_grid(g, a):
+    nu, nv = _grid_dims(g, a)
+    K = nu * nv
+    i_t, i_s = np.divmod(np.arange(K), nu)
+    cs, ct = (i_s + 0.5) / nu, (i_t + 0.5) / nv
+    center, normal = _param_world(g, cs, ct)
+    area = np.full(K, g.area / K)
+    # flat triangles for sampling: an m×m sub-grid per cell
+    m = int(np.clip(max(math.ceil(32 / nu), math.ceil(8 / nv)), 1, 8))
+    a_idx, b_idx = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+    a_idx, b_idx = a_idx.ravel(), b_idx.ravel()
+    s0 = (i_s[:, None] + a_idx[None, :] / m) / nu  # (K, m²)
+    t0 = (i_t[:, None] + b_idx[None, :] / m) / nv
+    ds, dt = 1.0 / (nu * m), 1.0 / (nv * m)
+    quad = [(0, 0), (1, 0), (1, 1), (0, 1)]
+    Q = [_param_world(g, s0 + qs * ds, t0 + qt * dt)[0] for qs, qt in quad]  # 4 × (K, m², 3)
+    tri = np.stack([np.stack([Q[0], Q[1], Q[2]], axis=-2),
+                    np.stack([Q[0], Q[2], Q[3]], axis=-2)], axis=2)  # (K, m², 2, 3, 3)
+    tri = tri.reshape(-1, 3, 3)
+    tri_local = np.repeat(np.arange(K), 2 * m * m)
+    # orient along the surface normal at the triangle's centroid (parameter space)
+    tc_s = np.repeat(s0 + 0.5 * ds, 2, axis=1).reshape(-1)
+    tc_t = np.repeat(t0 + 0.5 * dt, 2, axis=1).reshape(-1)
+    _, n_ref = _param_world(g, tc_s, tc_t)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    swap = np.einsum("ij,ij->i", cross, n_ref) < 0
+    tri[swap] = tri[swap][:, [0, 2, 1]]
+    cross[swap] = -cross[swap]
+    length = np.linalg.norm(cross, axis=1, keepdims=True)
+    tri_n = np.where(length > 0, cross / np.maximum(length, 1e-300), n_ref)
+    return dict(kind=g.kind, K=K, area=area, center=center, normal=normal, tri_v=tri,
+                tri_local=tri_local, tri_n=tri_n, nu=nu, nv=nv)
+
+
+def _evaluate_properties(scene, parts, N, seed):
+    """Albedo (``eval_diffuse_reflectance``) and emitted radiance averaged over each patch.
+
+    ``SAMPLES_PER_PATCH`` uniform points per patch become surface interactions through the
+    shape's own ``compute_surface_interaction`` (uv, frames and textures as Mitsuba has them)."""
+    albedo = np.zeros((N, 3))
+    Le = np.zeros((N, 3))
+    is_diffuse = np.zeros(N, dtype=bool)
+    if N == 0:
+        return albedo, is_diffuse, Le
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9A7C]))
+    k = SAMPLES_PER_PATCH
+    pos_in_dr = {int(r): i for i, r in
+                 enumerate(np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())))}
+    P, Nrm, prim, bary, dr_index, patch_of, wi_z = [], [], [], [], [], [], []
+    for part in parts:
+        g, K, b0 = part["geom"], part["K"], part["base"]
+        if part["kind"] == KIND_MESH:
+            # a triangle of the patch by area, then a uniform point on it
+            tri_area = 0.5 * np.linalg.norm(np.cross(part["tri_v"][:, 1] - part["tri_v"][:, 0],
+                                                     part["tri_v"][:, 2] - part["tri_v"][:, 0]),
+                                            axis=1)
+            order = np.argsort(part["tri_local"], kind="stable")
+            local_sorted = part["tri_local"][order]
+            cum = np.cumsum(tri_area[order])
+            first = np.searchsorted(local_sorted, np.arange(K))
+            last = np.searchsorted(local_sorted, np.arange(K), side="right") - 1
+            lo = np.where(first > 0, cum[np.maximum(first - 1, 0)], 0.0)
+            span = cum[last] - lo
+            u = rng.random((K, k))
+            target = lo[:, None] + u * span[:, None]
+            pick = np.searchsorted(cum, target, side="right")
+            pick = np.clip(pick, first[:, None], last[:, None])
+            # zero-area patches: the first triangle
+            pick = np.where(span[:, None] > 0, pick, first[:, None]).reshape(-1)
+            tri = order[pick]
+            r1, r2 = rng.random(tri.size), rng.random(tri.size)
+            sq = np.sqrt(r1)
+            w1, w2 = 1 - sq, sq * r2  # uniform barycentrics
+            w0 = 1 - w1 - w2
+            cb = part["tri_bary"][tri]  # corners in face barycentrics
+            fb = w0[:, None] * cb[:, 0] + w1[:, None] * cb[:, 1] + w2[:, None] * cb[:, 2]
+            face = part["tri_face"][tri]
+            F = g.F[face]
+            pts = (g.V[F[:, 0]] * (1 - fb[:, 0:1] - fb[:, 1:2]) + g.V[F[:, 1]] * fb[:, 0:1]
+                   + g.V[F[:, 2]] * fb[:, 1:2])
+            nrm = g.face_normal[face]
+            prim.append(face)
+            bary.append(fb)
+        else:
+            nu, nv = part["nu"], part["nv"]
+            i_t, i_s = np.divmod(np.arange(K), nu)
+            s = (i_s[:, None] + rng.random((K, k))) / nu
+            t = (i_t[:, None] + rng.random((K, k))) / nv
+            pts, nrm = _param_world(g, s.reshape(-1), t.reshape(-1))
+            prim.append(np.zeros(K * k, np.int64))
+            bary.append(np.zeros((K * k, 2)))
+        local = np.repeat(np.arange(K), k)
+        for sd in range(_sides(g)):
+            P.append(pts)
+            Nrm.append(nrm)
+            dr_index.append(np.full(K * k, pos_in_dr[g.reg_id], np.int64))
+            patch_of.append(b0 + sd * K + local)
+            wi_z.append(np.full(K * k, -1.0 if sd else 1.0))
+            if sd:
+                prim.append(prim[-1])
+                bary.append(bary[-1])
+    P, Nrm = np.concatenate(P), np.concatenate(Nrm)
+    prim, bary = np.concatenate(prim), np.concatenate(bary)
+    dr_index, patch_of, wi_z = map(np.concatenate, (dr_index, patch_of, wi_z))
+
+    n = P.shape[0]
+    delta = 1e-4 * max(float(np.linalg.norm(P.max(0) - P.min(0))), 1e-30)
+    o = P + Nrm * delta
+    ray = mi.Ray3f(mi.Point3f(*[mi.Float(o[:, i].astype(np.float32)) for i in range(3)]),
+                   mi.Vector3f(*[mi.Float((-Nrm[:, i]).astype(np.float32)) for i in range(3)]))
+    pi = dr.zeros(mi.PreliminaryIntersection3f, n)
+    pi.t = dr.full(mi.Float, delta, n)
+    pi.prim_uv = mi.Point2f(mi.Float(bary[:, 0].astype(np.float32)),
+                            mi.Float(bary[:, 1].astype(np.float32)))
+    pi.prim_index = mi.UInt32(prim.astype(np.uint32))
+    pi.shape = dr.gather(mi.ShapePtr, scene.shapes_dr(), mi.UInt32(dr_index.astype(np.uint32)))
+    si = pi.shape.compute_surface_interaction(ray, pi, mi.RayFlags.All, mi.Bool(True))
+    si.wi = mi.Vector3f(0.0, 0.0, mi.Float(wi_z.astype(np.float32)))
+    bsdf = si.bsdf()
+    rho = bsdf.eval_diffuse_reflectance(si, True)
+    emitted = si.emitter(scene).eval(si, True)
+    rho_np = np.nan_to_num(np.array(rho, dtype=np.float64).T.reshape(n, 3), nan=0.0)
+    le_np = np.nan_to_num(np.array(emitted, dtype=np.float64).T.reshape(n, 3), nan=0.0)
+    for c in range(3):
+        albedo[:, c] = np.bincount(patch_of, weights=rho_np[:, c], minlength=N) / k
+        Le[:, c] = np.bincount(patch_of, weights=le_np[:, c], minlength=N) / k
+    for part in parts:
+        g, K, b0 = part["geom"], part["K"], part["base"]
+        is_diffuse[b0:b0 + K * _sides(g)] = g.diffuse
+    albedo = np.where(is_diffuse[:, None], np.maximum(albedo, 0.0), 0.0)
+    return albedo, is_diffuse, np.maximum(Le, 0.0)
+
+
+def _make_tables(patches, parts, tri_v, tri_p, tri_n):
+    """Dr.Jit tables of the lookup and the sampler (each padded to length ≥ 1)."""
+    N = patches.count
+    n_reg = 1 + max([p["geom"].reg_id for p in parts], default=0)
+    kind = np.zeros(n_reg, np.uint32)
+    back_offset = np.zeros(n_reg, np.uint32)
+    face_offset = np.zeros(n_reg, np.uint32)
+    grid_base = np.zeros(n_reg, np.uint32)
+    grid_nu = np.ones(n_reg, np.uint32)
+    grid_nv = np.ones(n_reg, np.uint32)
+    face_patch, face_sub = [], []
+    sub_res, sub_v0, sub_g1, sub_g2 = [], [], [], []
+    n_faces = n_sub = 0
+    for part in parts:
+        g, K, b0 = part["geom"], part["K"], part["base"]
+        r = g.reg_id
+        kind[r] = part["kind"]
+        back_offset[r] = K if g.two_sided else 0
+        if part["kind"] == KIND_MESH:
+            face_offset[r] = n_faces
+            n_faces += g.F.shape[0]
+            fs = part["face_sub"].copy()
+            subd = np.nonzero(fs == -1)[0]
+            fs[subd] = n_sub + np.arange(subd.size)
+            n_sub += subd.size
+            face_patch.append(part["face_patch"] + b0)
+            face_sub.append(fs)
+            v0 = g.V[g.F[subd, 0]]
+            e1 = g.V[g.F[subd, 1]] - v0
+            e2 = g.V[g.F[subd, 2]] - v0
+            d00 = np.einsum("ij,ij->i", e1, e1)
+            d01 = np.einsum("ij,ij->i", e1, e2)
+            d11 = np.einsum("ij,ij->i", e2, e2)
+            den = d00 * d11 - d01 * d01
+            inv = np.where(den > 0, 1.0 / np.where(den > 0, den, 1.0), 0.0)[:, None]
+            sub_g1.append((d11[:, None] * e1 - d01[:, None] * e2) * inv)
+            sub_g2.append((d00[:, None] * e2 - d01[:, None] * e1) * inv)
+            sub_v0.append(v0)
+            sub_res.append(part["res"][subd])
+        else:
+            grid_base[r] = b0
+            grid_nu[r], grid_nv[r] = part["nu"], part["nv"]
+
+    def cat(lst, shape, dtype):
+        arr = np.concatenate(lst).astype(dtype) if lst else np.zeros(0, dtype)
+        return arr if len(arr) else np.zeros(shape, dtype)
+
+    face_patch = cat(face_patch, (1,), np.uint32)
+    face_sub = cat(face_sub, (1,), np.uint32)
+    sub_res = cat(sub_res, (1,), np.uint32)
+    sub_v0, sub_g1, sub_g2 = (cat(x, (1, 3), np.float32) for x in (sub_v0, sub_g1, sub_g2))
+
+    # sampler: per-patch CDF over triangle areas (local, in [0, 1])
+    T = tri_v.shape[0]
+    tri_area = 0.5 * np.linalg.norm(np.cross(tri_v[:, 1] - tri_v[:, 0], tri_v[:, 2] - tri_v[:, 0]),
+                                    axis=1) if T else np.zeros(0)
+    start = np.searchsorted(tri_p, np.arange(N)).astype(np.int64)
+    count = (np.searchsorted(tri_p, np.arange(N), side="right") - start).astype(np.int64)
+    patch_tri_area = np.bincount(tri_p, weights=tri_area, minlength=N) if T else np.zeros(N)
+    cum = np.cumsum(tri_area) if T else np.zeros(0)
+    before = np.where(start > 0, cum[np.maximum(start - 1, 0)], 0.0) if T else np.zeros(N)
+    if T:
+        local = cum - before[tri_p]
+        denom = patch_tri_area[tri_p]
+        cdf = np.where(denom > 0, local / np.where(denom > 0, denom, 1.0),
+                       (np.arange(T) - start[tri_p] + 1) / np.maximum(count[tri_p], 1))
+        last = start + count - 1
+        cdf[last[count > 0]] = 1.0
+    else:
+        cdf = np.zeros(0)
+    inv_area = np.where(patch_tri_area > 0, 1.0 / np.where(patch_tri_area > 0, patch_tri_area, 1),
+                        0.0)
+
+    def f32(x, shape):
+        x = np.asarray(x, np.float32)
+        return x if x.size else np.zeros(shape, np.float32)
+
+    def pt(x, cls):
+        x = f32(x, (1, 3))
+        return cls(*(mi.Float(np.ascontiguousarray(x[:, i])) for i in range(3)))
+
+    def pad(x, value=0):
+        return np.concatenate([x, np.array([value], dtype=x.dtype)])
+
+    tri_v32 = f32(tri_v, (1, 3, 3))
+    t = dict(
+        n_reg=n_reg, n_tri=max(T, 1),
+        kind=mi.UInt32(kind), back_offset=mi.UInt32(back_offset),
+        face_offset=mi.UInt32(face_offset), grid_base=mi.UInt32(grid_base),
+        grid_nu=mi.UInt32(grid_nu), grid_nv=mi.UInt32(grid_nv),
+        face_patch=mi.UInt32(face_patch), face_sub=mi.UInt32(face_sub),
+        sub_res=mi.UInt32(np.maximum(sub_res, 1)), sub_v0=pt(sub_v0, mi.Point3f),
+        sub_g1=pt(sub_g1, mi.Vector3f), sub_g2=pt(sub_g2, mi.Vector3f),
+        tri_patch=mi.UInt32(tri_p.astype(np.uint32) if T else np.full(1, INVALID, np.uint32)),
+        tri_cdf=mi.Float(f32(cdf, (1,))),
+        tri_v0=pt(tri_v32[:, 0], mi.Point3f),
+        tri_e1=pt(tri_v32[:, 1] - tri_v32[:, 0], mi.Vector3f),
+        tri_e2=pt(tri_v32[:, 2] - tri_v32[:, 0], mi.Vector3f),
+        tri_n=pt(tri_n, mi.Vector3f),
+        patch_tri_start=mi.UInt32(pad(start.astype(np.uint32))),
+        patch_tri_count=mi.UInt32(pad(count.astype(np.uint32))),
+        patch_inv_tri_area=mi.Float(pad(inv_area.astype(np.float32))),
+    )
+
+    def vec(x, cls):
+        x = np.vstack([np.asarray(x, np.float64), np.zeros((1, 3))]).astype(np.float32)
+        return cls(*(mi.Float(np.ascontiguousarray(x[:, i])) for i in range(3)))
+
+    t.update(
+        patch_is_diffuse=mi.Bool(pad(patches.is_diffuse.astype(bool), False)),
+        patch_area=mi.Float(pad(patches.area.astype(np.float32))),
+        patch_center=vec(patches.center, mi.Point3f),
+        patch_normal=vec(patches.normal, mi.Vector3f),
+        patch_albedo=vec(patches.albedo, mi.Color3f),
+        patch_Le=vec(patches.Le, mi.Color3f),
+    )
+    return t
