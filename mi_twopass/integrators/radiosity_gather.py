@@ -22,9 +22,11 @@ UNBOUNDED = 0xFFFFFFFF
 
 
 def mis_weight(pdf_a, pdf_b):
-    """Power heuristic (β = 2): w_a = p_a² / (p_a² + p_b²), 0 where both pdfs vanish."""
+    """Power heuristic (β = 2): w_a = p_a² / (p_a² + p_b²); 0 where it is not finite
+    (both pdfs 0, or an infinite pdf at a grazing or coincident sample), as Mitsuba's own."""
     a2 = dr.square(pdf_a)
-    return dr.detach(dr.select(pdf_a > 0, a2 / dr.maximum(a2 + dr.square(pdf_b), 1e-38), 0.0))
+    w = a2 / (a2 + dr.square(pdf_b))
+    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
 class RadiosityGatherIntegrator(TwoPassIntegrator):
