@@ -17,6 +17,9 @@ from .base import TwoPassIntegrator, read_choice, read_float, read_int
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 
+#: fewest particles the prepass shoots, however few patches (per-patch noise ~ 1/sqrt(n/N))
+MIN_PARTICLES = 1 << 16
+
 #: largest max_depth as a UInt32 loop bound
 UNBOUNDED = 0xFFFFFFFF
 
@@ -114,7 +117,7 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
         """GSII steps 1–2: patches of the (simplified) scene and their radiosity."""
         gather_scene = load_scene(self.prepass_scene_path) if self.prepass_scene_path else scene
         patches = build_patches(gather_scene, max_patches=self.max_patches, seed=seed)
-        n_particles = max(1, self.particles_per_patch * patches.count)
+        n_particles = max(MIN_PARTICLES, self.particles_per_patch * patches.count)
         solution = solve_radiosity(gather_scene, patches, n_particles=n_particles, seed=seed)
         self.gather_scene = gather_scene
         self._setup_virtual_luminaires(solution)
@@ -252,7 +255,8 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
 
             # Explicit gather from virtual luminaires (GSII reclassified bright reflectors).
             if want_indirect:
-                Lv, vl_ray = self.sample_virtual(scene, sampler, si, bsdf, ctx, r_thresh, active_em)
+                Lv, vl_ray = self.sample_virtual(scene, sampler, si, bsdf, ctx, r_thresh,
+                                                 active_next & smooth)
                 L += beta * Lv
                 n_explicit += dr.select(vl_ray, 1, 0)
 

@@ -1,0 +1,189 @@
+"""radiosity_gather: consistency with path, prepass_scene, stats, hard cases."""
+import os
+import re
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mi_twopass.evaluation.statistics import block_z_scores
+
+SCENES = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(__file__))), "scenes_xml")
+CORNELL = os.path.join(SCENES, "cornell_box.xml")
+FURNACE = os.path.join(SCENES, "furnace.xml")
+
+
+def renders(scene, spec, k, spp, seed0=0):
+    out = []
+    for s in range(k):
+        integrator = mi.load_dict(spec)
+        out.append(np.asarray(mi.render(scene, integrator=integrator, spp=spp, seed=seed0 + s)))
+    return np.stack(out), integrator
+
+
+def test_large_r_thresh_agrees_with_path():
+    """r_thresh → ∞ is path tracing: per-block z-test against Mitsuba's path."""
+    scene = mi.load_file(CORNELL, res=32)
+    a, _ = renders(scene, {"type": "radiosity_gather", "r_thresh": 1e6,
+                           "max_patches": 256}, 6, 32)
+    b, _ = renders(scene, {"type": "path", "max_depth": -1}, 6, 32, seed0=100)
+    z = block_z_scores(a, b, 8)
+    assert np.all(np.isfinite(a))
+    assert np.max(np.abs(z)) < 4.0, z
+    assert np.mean(z**2) < 2.5, z
+
+
+def test_default_is_close_to_path_on_cornell():
+    """The two-pass default is biased only by the radiosity solution: mean within 2 %."""
+    scene = mi.load_file(CORNELL, res=32)
+    a, integ = renders(scene, {"type": "radiosity_gather"}, 2, 64)
+    b, _ = renders(scene, {"type": "path", "max_depth": -1}, 2, 256, seed0=50)
+    assert abs(a.mean() / b.mean() - 1) < 0.02
+    assert integ.stats["implicit_rays"] > 0
+
+
+def test_furnace_integrator_exact():
+    """Closed furnace: radiance Le/(1-ρ) everywhere, also through the gather."""
+    rho = 0.9
+    scene = mi.load_file(FURNACE, res=16, albedo=rho)
+    img, _ = renders(scene, {"type": "radiosity_gather", "r_thresh": 0.0, "max_patches": 64}, 1, 64)
+    assert np.all(np.isfinite(img))
+    assert img.mean() == pytest.approx(1.0 / (1 - rho), rel=0.01)
+
+
+def test_stats_have_table1_rows():
+    scene = mi.load_file(CORNELL, res=16)
+    integ = mi.load_dict({"type": "radiosity_gather", "max_patches": 128})
+    mi.render(scene, integrator=integ, spp=4)
+    s = integ.stats
+    for key in ("viewing_rays", "implicit_rays", "explicit_rays", "prepass_rays",
+                "prepass_seconds", "render_seconds", "cache_bytes"):
+        assert key in s
+    assert s["viewing_rays"] == 16 * 16 * 4
+    assert s["prepass_rays"] > 0 and s["prepass_seconds"] > 0 and s["render_seconds"] > 0
+    assert 0 < s["implicit_rays"] <= s["viewing_rays"] * 64
+    assert s["explicit_rays"] > 0 and s["cache_bytes"] > 0
+    # a second render reuses the prepass
+    mi.render(scene, integrator=integ, spp=4, seed=0)
+    assert integ.stats["prepass_seconds"] == 0.0
+
+
+def test_r_thresh_zero_uses_one_implicit_ray_per_view_ray():
+    scene = mi.load_file(CORNELL, res=16)
+    integ = mi.load_dict({"type": "radiosity_gather", "r_thresh": 0.0, "max_patches": 128,
+                          "vl_threshold": 2.0})
+    mi.render(scene, integrator=integ, spp=4)
+    s = integ.stats
+    # pure two-pass: one gather ray and (at most) one shadow ray per first hit
+    assert s["implicit_rays"] <= s["viewing_rays"]
+    assert s["explicit_rays"] <= s["viewing_rays"]
+
+
+def test_prepass_scene_is_used(tmp_path):
+    """GSII: the prepass runs on a simplified (massing) copy; far gathers read its patches."""
+    text = open(CORNELL).read()
+    # the massing model: the same room without the two boxes
+    simplified = re.sub(r'<shape type="cube".*?</shape>', "", text, flags=re.S)
+    assert simplified != text
+    p = tmp_path / "massing.xml"
+    p.write_text(simplified)
+    scene = mi.load_file(CORNELL, res=16)
+    full = mi.load_dict({"type": "radiosity_gather", "max_patches": 256, "r_thresh": 0.0})
+    simp = mi.load_dict({"type": "radiosity_gather", "max_patches": 256, "r_thresh": 0.0,
+                         "prepass_scene": str(p)})
+    a = np.asarray(mi.render(scene, integrator=full, spp=16))
+    b = np.asarray(mi.render(scene, integrator=simp, spp=16))
+    assert np.all(np.isfinite(b))
+    assert simp.gather_scene is not scene
+    # the prepass ran on the massing model: less surface, and far gathers read its patches
+    assert simp.structure.patches.area.sum() < 0.9 * full.structure.patches.area.sum()
+    assert not np.allclose(a, b)
+
+
+def test_missing_prepass_scene_fails_at_load(tmp_path):
+    with pytest.raises(Exception, match="prepass_scene: file not found"):
+        mi.load_dict({"type": "radiosity_gather", "prepass_scene": str(tmp_path / "nope.xml")})
+
+
+@pytest.mark.parametrize("bad", [{"max_patches": 0}, {"r_thresh": -1.0},
+                                 {"component": "nonsense"}, {"debug": "what"}])
+def test_bad_parameters_fail_at_load(bad):
+    with pytest.raises(Exception) as e:
+        mi.load_dict({"type": "radiosity_gather", **bad})
+    assert list(bad)[0] in str(e.value)
+
+
+@pytest.mark.parametrize("mode", ["radiosity", "patches", "virtual"])
+def test_debug_modes(mode):
+    scene = mi.load_file(CORNELL, res=16)
+    img = np.asarray(mi.render(scene, integrator=mi.load_dict(
+        {"type": "radiosity_gather", "debug": mode, "max_patches": 128}), spp=2))
+    assert np.all(np.isfinite(img)) and img.max() > 0
+
+
+def test_components_sum_to_all():
+    scene = mi.load_file(CORNELL, res=16)
+    parts = {}
+    for c in ("all", "direct", "indirect"):
+        integ = mi.load_dict({"type": "radiosity_gather", "component": c, "max_patches": 128})
+        parts[c] = np.asarray(mi.render(scene, integrator=integ, spp=64, seed=1)).mean()
+    assert parts["direct"] > 0 and parts["indirect"] > 0
+    assert parts["direct"] + parts["indirect"] == pytest.approx(parts["all"], rel=0.03)
+
+
+# -- hard cases: no NaN, no Inf ------------------------------------------------------------
+
+def box_scene(scale=1.0, albedo=0.5, emit=True, extra=None):
+    d = {
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 60,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 0.9 * scale],
+                                                              target=[0, 0, 0], up=[0, 1, 0]),
+                   "near_clip": 1e-3 * scale, "far_clip": 10 * scale,
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+        "box": {"type": "cube", "flip_normals": True,
+                "to_world": mi.ScalarTransform4f().scale(scale),
+                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo}}},
+    }
+    if emit:
+        d["light"] = {"type": "point", "position": [0, 0.5 * scale, 0],
+                      "intensity": {"type": "rgb", "value": scale * scale}}
+    if extra:
+        d.update(extra)
+    return mi.load_dict(d)
+
+
+@pytest.mark.parametrize("case", ["albedo_0.99", "scale_1e-3", "scale_1e4", "no_emitters",
+                                  "zero_area_triangle"])
+def test_hard_cases_finite(case):
+    extra = None
+    if case == "zero_area_triangle":
+        m = mi.Mesh("degenerate", 3, 1)
+        params = mi.traverse(m)
+        params["vertex_positions"] = [0, 0, 0, 0.5, 0, 0, 1.0, 0, 0]  # collinear: area 0
+        params["faces"] = [0, 1, 2]
+        params.update()
+        extra = {"degenerate": m}
+    scene = {
+        "albedo_0.99": lambda: box_scene(albedo=0.99),
+        "scale_1e-3": lambda: box_scene(scale=1e-3),
+        "scale_1e4": lambda: box_scene(scale=1e4),
+        "no_emitters": lambda: box_scene(emit=False),
+        "zero_area_triangle": lambda: box_scene(extra=extra),
+    }[case]()
+    integ = mi.load_dict({"type": "radiosity_gather", "max_patches": 96})
+    img = np.asarray(mi.render(scene, integrator=integ, spp=8))
+    assert np.all(np.isfinite(img))
+    if case == "no_emitters":
+        assert np.all(img == 0)
+    else:
+        assert img.mean() > 0
+
+
+def test_scale_invariance():
+    """The same box at 1e-3 m and at 1e4 m (point light scaled to keep irradiance) looks alike."""
+    a = np.asarray(mi.render(box_scene(1e-3), integrator=mi.load_dict(
+        {"type": "radiosity_gather", "max_patches": 96}), spp=64))
+    b = np.asarray(mi.render(box_scene(1e4), integrator=mi.load_dict(
+        {"type": "radiosity_gather", "max_patches": 96}), spp=64))
+    assert a.mean() == pytest.approx(b.mean(), rel=0.05)
