@@ -29,7 +29,6 @@ from . import metrics
 from .reference import DEFAULT_REFERENCE_SPP, reference_image
 
 TARGET_RELMSE = 0.01
-MAX_LANES_PER_PASS = 1 << 22
 
 
 @dataclass
@@ -61,21 +60,22 @@ def parse_integrator_spec(spec: str) -> tuple[str, dict]:
     return name, props
 
 
-def make_integrator(spec: str, spp_per_pass: int | None = None):
+def make_integrator(spec: str):
+    """A fresh integrator from a spec; ``path`` defaults to unbounded depth as the reference."""
     name, props = parse_integrator_spec(spec)
     d = {"type": name, **props}
     if name == "path":
         d.setdefault("max_depth", -1)
-    if spp_per_pass:
-        d["samples_per_pass"] = spp_per_pass
     return mi.load_dict(d)
 
 
-def timed_render(scene, spec: str, spp: int, seed: int, spp_per_pass: int | None = None):
-    """(image, seconds, stats) of one render with a fresh integrator, prepass included."""
+def timed_render(scene, spec: str, spp: int, seed: int):
+    """(image, seconds, stats) of one render with a fresh integrator, prepass included.
+
+    Mitsuba splits a render into passes by itself when spp × pixels is too large."""
     dr.sync_thread()
     t0 = time.perf_counter()
-    integrator = make_integrator(spec, spp_per_pass if spp_per_pass and spp > spp_per_pass else None)
+    integrator = make_integrator(spec)
     image = mi.render(scene, integrator=integrator, spp=spp, seed=seed)
     image = np.asarray(image, dtype=np.float32)[..., :3]  # numpy conversion waits for the kernel
     dr.sync_thread()
@@ -139,14 +139,12 @@ def run_compare(scene_path, integrators, budget: float, params: dict | None = No
     params = dict(params or {})
     reference = reference_image(scene_path, params, spp=ref_spp, verbose=True)
     scene = load_scene(scene_path, **params)
-    h, w = reference.shape[:2]
-    spp_per_pass = max(1, 2 ** int(math.log2(max(1, MAX_LANES_PER_PASS // (w * h)))))
     curves = {}
     for spec in integrators:
         timed_render(scene, spec, 1, seed + 999_983)  # warm-up: compile kernels, untimed
         points, spent, spp = [], 0.0, 1
         while spp <= max_spp:
-            image, seconds, stats = timed_render(scene, spec, spp, seed + spp, spp_per_pass)
+            image, seconds, stats = timed_render(scene, spec, spp, seed + spp)
             m = metrics.all_metrics(image, reference)
             points.append(Point(spp, seconds, m["relmse"], m["flip"], m["mse"], stats))
             spent += seconds

@@ -73,7 +73,8 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
        - Default ``r_thresh`` as a fraction of the bounding-box diagonal (default: 0.1).
      * - max_patches
        - |int|
-       - Patch budget of the prepass (default: 4096).
+       - Patch budget of the prepass (default: 1024; on the Cornell box 4096 patches lowered
+         the error at 1024 spp by < 10 % and cost 4× the prepass time).
      * - particles_per_patch
        - |int|
        - Particles the stochastic radiosity solver shoots per patch (default: 256).
@@ -100,7 +101,7 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
         self.r_thresh_abs = read_float(props, "r_thresh", -1.0) if "r_thresh" in props else None
         if self.r_thresh_abs is not None and self.r_thresh_abs < 0:
             raise ValueError(f"r_thresh={self.r_thresh_abs}: must be >= 0")
-        self.max_patches = read_int(props, "max_patches", 4096, minimum=1)
+        self.max_patches = read_int(props, "max_patches", 1024, minimum=1)
         self.particles_per_patch = read_int(props, "particles_per_patch", 256, minimum=1)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
