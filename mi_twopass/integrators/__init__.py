@@ -14,6 +14,8 @@ import sys
 #: plugin name -> module. Only integrators that exist are listed (no placeholders).
 PLUGINS = {
     "radiosity_gather": "mi_twopass.integrators.radiosity_gather",
+    "radiance_cache": "mi_twopass.integrators.radiance_cache",
+    "rex": "mi_twopass.integrators.rex",
 }
 
 #: modules holding variant-bound classes, imported before the plugins, in this order.

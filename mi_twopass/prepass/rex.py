@@ -1,0 +1,1155 @@
+"""Adaptive radiosity textures (rexes) and the passes that fill them.
+
+Heckbert, "Adaptive Radiosity Textures for Bidirectional Ray Tracing", SIGGRAPH 1990
+(shared/papers/003_*). Names follow the paper: a *rex* is a quadtree histogram over the (u, v)
+parameter square of one diffuse surface region; its leaves are *buckets* that count photons and
+add up their power (flux); the *light quadtree* stratifies the emission of every light.
+
+The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
+
+1. **Size pass** (§3.4.1, :func:`size_pass`): rays from the eye, through delta and glossy
+   bounces, record at their first diffuse hit the size of a pixel's preimage in that surface's
+   parameter space (ray differentials spread over the path length, projected on the tangent plane,
+   divided by the parameterisation's Jacobian |∂p/∂u × ∂p/∂v|). The finest level at which a rex
+   bucket is still ≥ ``bucket_pixels`` pixels becomes the bucket's *cap*, per 8×8 size cell of an
+   analytic shape and per triangle of a mesh. Regions no eye ray saw are capped at level 0 (they
+   only feed interreflection, which travels with the photons, never through a rex).
+2. **Light pass** (§3.4.2, §4.1, :func:`light_pass`): per light, an adaptive quadtree over one 2-D
+   factor of Mitsuba's ``Emitter.sample_ray`` primary sample space (the direction of point and
+   area lights and of the environment, the direction of a spot, the beam cross-section of a
+   directional light). Level by level, every new node sends one jittered *pilot* ray to its first
+   diffuse hit; a node is split when one of its four neighbours reached another surface or
+   specular chain (a different path signature: silhouettes, shadow and caustic edges) or landed
+   farther away than ``light_split_dist``, and only where one of the two hits is seen by the eye
+   (size pass). Neighbours of split nodes one level coarser are split too (the paper's restricted
+   quadtree). The other 2-D factor (the position on an area light) is stratified by padding: one
+   jittered stratum of a randomly permuted grid per ray. The tree grows to a quarter of the
+   light's photon budget (shared among lights by power); then every leaf shoots its final photons
+   afresh, one jittered photon per quadrant (unbiased: the tree depends only on the pilot rays),
+   each carrying Φ = weight · |quadrant| / reps.
+   Photons follow delta and glossy bounces (``bsdf.sample`` in ``TransportMode.Importance``:
+   Fresnel-weighted reflection or refraction) and, at every diffuse vertex, deposit their flux and
+   continue diffusely with Russian roulette: L(S*D)*S*E is complete (the simple alternative to
+   §4's progressive shooting from bright rexes).
+3. **Rex build** (§4.0.5, :func:`build_rex_tree`): the histogram-redistribution problem of §4.1
+   is avoided by keeping the photon records (rex, u, v, Φ) of the final shoot — the paper's own
+   suggestion in §5 — and building every rex quadtree from them: a bucket splits while it holds
+   more than ``split_limit`` photons and its cap allows. No photon is shot twice and no bucket
+   mass is ever redistributed: each bucket's sum is exact for its final extent. (The split uses
+   the same photons as the estimate; by symmetry the estimate at a point stays unbiased, though
+   split buckets lean high and unsplit ones low.) The deposit into the leaves is a Dr.Jit
+   ``scatter_reduce`` in 64-bit fixed point, so that the sums, hence the images, do not depend
+   on the order of the atomic adds. A bucket's irradiance is E = ΣΦ / area
+   (:mod:`mi_twopass.units`), with the exact world area of its parameter square times the
+   fraction of it that closed objects resting on the surface leave open (:func:`probe_exposure`:
+   no dark seam along the foot of a box).
+
+Lookups (:meth:`Rexes.irradiance`) descend the quadtree and interpolate bilinearly between the
+centres of the leaf and its three neighbours towards the query point (neighbours found by
+descending at the centre ± one leaf size; outside the parameter domain, or on a zero-area bucket,
+the leaf's own value is used), so neither blocks nor seams between buckets of one rex show. Mesh
+regions are single triangles in barycentric coordinates (b1, b2) ∈ [0,1]², b1 + b2 ≤ 1; their
+rexes do not interpolate across triangle edges.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .. import units
+from ..progress import progress
+
+#: child index of a leaf
+LEAF = 0xFFFFFFFF
+NO_SHAPE = 0xFFFFFFFF
+KIND_NONE, KIND_UV, KIND_TRI = 0, 1, 2
+#: how a bucket's world area follows from its parameter square
+AREA_FLAT, AREA_SPHERE, AREA_DISK, AREA_TRI = 0, 1, 2, 3
+WRAP_U, WRAP_V = 1, 2
+#: analytic shapes record the size pass on 2^3 × 2^3 cells of their parameter square
+SIZE_GRID_LEVEL = 3
+#: deepest rex level (bucket side 2^-20 of the parameter square)
+MAX_LEVEL = 20
+#: deepest light-quadtree level (keys hold 19 bits per axis)
+MAX_LIGHT_LEVEL = 18
+ONE_MINUS_EPS = 1.0 - 2.0**-24
+#: photon record flag: deposited at the photon's first hit (an L·D path: direct light)
+FLAG_DIRECT = 1
+#: final photons per Dr.Jit launch
+PHOTON_BATCH = 1 << 20
+#: stratified points per rex leaf that test whether closed geometry buries it
+EXPOSURE_PROBES = 4
+#: delta / glossy bounces a pilot or size ray follows before giving up
+MAX_CHAIN = 16
+
+_DIFFUSE = int(mi.BSDFFlags.DiffuseReflection)
+_NOT_REX = int(mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta | mi.BSDFFlags.DiffuseTransmission
+               | mi.BSDFFlags.Null)
+_BACK = int(mi.BSDFFlags.BackSide)
+
+# seeds of the independent streams, so that passes never share random numbers
+_SALT_SIZE, _SALT_PROBE, _SALT_PILOT, _SALT_PHOTON, _SALT_NUMPY = 1, 2, 3, 4, 5
+
+
+def is_rex_bsdf(flags) -> bool:
+    """A rex lives on surfaces whose BSDF is purely diffuse reflection (one- or two-sided)."""
+    flags = int(flags)
+    return bool(flags & _DIFFUSE) and not (flags & _NOT_REX)
+
+
+def _seed(seed, salt, extra=0) -> int:
+    return (int(seed) * 0x9E3779B1 + salt * 0x85EBCA77 + extra * 0xC2B2AE3D) & 0x7FFFFFFF
+
+
+def _sampler(seed, n):
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, int(n))
+    return sampler
+
+
+@dataclass(frozen=True)
+class RexSettings:
+    """Every parameter of the rex prepass (the integrator's docstring explains each)."""
+
+    photons: int = 1 << 20
+    split_limit: int = 16
+    max_level: int = 14
+    bucket_pixels: float = 0.5
+    direct: str = "rex"  # "rex": rexes hold direct light; "shadow": indirect + caustics only
+    max_depth: int = -1
+    rr_depth: int = 5
+    light_levels: int = 3
+    light_split_dist: float = 0.05  # fraction of the bounding-box diagonal
+    size_spp: int = 4
+
+
+# ---------------------------------------------------------------------------------------------
+# Scene tables: which surfaces carry rexes and how a hit maps to (rex, u, v)
+# ---------------------------------------------------------------------------------------------
+class RexTables:
+    """Per shape and per rex bookkeeping, in numpy and as Dr.Jit arrays for the hot paths.
+
+    A rex is one parameter square: a whole analytic shape (rectangle, sphere, disk, cylinder, ...)
+    over its (u, v), or one triangle of a mesh over its barycentrics. Two-sided BSDFs get one rex
+    per side (the two sides of a sheet are lit differently).
+    """
+
+    def __init__(self, scene):
+        shapes = list(scene.shapes())
+        ids = (np.asarray(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
+               if shapes else np.zeros(0, np.int64))
+        self.n_ids = int(ids.max()) + 1 if ids.size else 1
+        id_to_shape = np.full(self.n_ids, NO_SHAPE, np.uint32)
+        id_to_shape[ids] = np.arange(len(shapes), dtype=np.uint32)
+
+        n = len(shapes)
+        kind = np.zeros(n, np.uint32)
+        sides = np.ones(n, np.uint32)
+        regions = np.zeros(n, np.int64)
+        area_rule = np.zeros(n, np.uint32)
+        wrap = np.zeros(n, np.uint32)
+        shape_area = np.zeros(n, np.float64)
+        tri_base = np.zeros(n, np.int64)
+        tris_p0, tris_e1, tris_e2 = [], [], []
+        n_tris = 0
+        for i, shape in enumerate(shapes):  # setup over shapes, not a hot path
+            bsdf = shape.bsdf()
+            flags = int(bsdf.flags()) if bsdf is not None else 0
+            if not is_rex_bsdf(flags):
+                continue
+            name = shape.class_name()
+            sides[i] = 2 if flags & _BACK else 1
+            if shape.is_mesh() and name != "Rectangle":
+                kind[i] = KIND_TRI
+                area_rule[i] = AREA_TRI
+                V = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+                F = np.asarray(shape.faces_buffer(), np.int64).reshape(-1, 3)
+                p0 = V[F[:, 0]]
+                tris_p0.append(p0)
+                tris_e1.append(V[F[:, 1]] - p0)
+                tris_e2.append(V[F[:, 2]] - p0)
+                tri_base[i] = n_tris
+                regions[i] = F.shape[0]
+                n_tris += F.shape[0]
+            else:
+                kind[i] = KIND_UV
+                regions[i] = 1
+                shape_area[i] = float(dr.sum(shape.surface_area())[0]) \
+                    if dr.width(shape.surface_area()) else 0.0
+                area_rule[i] = {"Sphere": AREA_SPHERE, "Disk": AREA_DISK}.get(name, AREA_FLAT)
+                wrap[i] = {"Sphere": WRAP_U, "Cylinder": WRAP_U, "Disk": WRAP_V}.get(name, 0)
+
+        p0 = np.concatenate(tris_p0) if tris_p0 else np.zeros((0, 3))
+        e1 = np.concatenate(tris_e1) if tris_e1 else np.zeros((0, 3))
+        e2 = np.concatenate(tris_e2) if tris_e2 else np.zeros((0, 3))
+        tri_area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+
+        rex_count = regions * sides
+        rex_base = np.concatenate([[0], np.cumsum(rex_count)[:-1]]).astype(np.int64) if n else \
+            np.zeros(0, np.int64)
+        R = int(rex_count.sum())
+        self.count = R
+        self.shapes = shapes
+        self.shape_kind, self.shape_sides, self.shape_rex_base = kind, sides, rex_base
+        self.shape_tri_base, self.shape_wrap = tri_base, wrap
+
+        # per rex: its shape, region and side
+        rex_shape = np.repeat(np.arange(n, dtype=np.int64), rex_count)
+        local = np.arange(R, dtype=np.int64) - np.repeat(rex_base, rex_count)
+        rex_region = local // np.repeat(sides.astype(np.int64), rex_count)
+        self.rex_shape = rex_shape.astype(np.uint32)
+        self.rex_side = (local % np.repeat(sides.astype(np.int64), rex_count)).astype(np.uint8)
+        self.rex_tri = np.where(kind[rex_shape] == KIND_TRI, tri_base[rex_shape] + rex_region, -1)
+        self.tri_p0, self.tri_e1, self.tri_e2 = p0, e1, e2
+        self.rex_kind = kind[rex_shape]
+        self.rex_area_rule = area_rule[rex_shape]
+        self.rex_wrap = wrap[rex_shape]
+        is_tri = self.rex_kind == KIND_TRI
+        self.rex_area = np.where(
+            is_tri, tri_area[np.minimum(tri_base[rex_shape] + rex_region, max(n_tris - 1, 0))]
+            if n_tris else 0.0, shape_area[rex_shape])
+        self.rex_size_level = np.where(is_tri, 0, SIZE_GRID_LEVEL).astype(np.uint32)
+        cells = 4 ** self.rex_size_level.astype(np.int64)
+        self.rex_size_offset = np.concatenate([[0], np.cumsum(cells)[:-1]]).astype(np.int64) \
+            if R else np.zeros(0, np.int64)
+        self.size_cells = int(cells.sum())
+        self.tri_area = tri_area
+        self.tri_count = n_tris
+
+        # Dr.Jit copies (padded by one entry: a gather never reads an empty array)
+        def u32(a):
+            return mi.UInt32(np.append(np.asarray(a, np.uint32), 0))
+
+        def f32(a):
+            return mi.Float(np.append(np.asarray(a, np.float32).ravel(), np.zeros(3, np.float32)))
+
+        self.d_id_to_shape = mi.UInt32(id_to_shape)
+        self.d_kind = u32(kind)
+        self.d_sides = u32(sides)
+        self.d_rex_base = u32(rex_base)
+        self.d_tri_base = u32(tri_base)
+        self.d_tri_p0, self.d_tri_e1, self.d_tri_e2 = f32(p0), f32(e1), f32(e2)
+        self.d_tri_area2 = f32(2.0 * tri_area)
+        self.d_size_offset = u32(self.rex_size_offset)
+        self.d_size_level = u32(self.rex_size_level)
+        self.d_wrap = u32(self.rex_wrap)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.n_ids * 4 + len(self.shapes) * 20 + self.tri_count * 40 + self.count * 28)
+
+    def shape_rexes(self, shape) -> np.ndarray:
+        """The rex ids of a shape (a ``mi.Shape``, its index in ``scene.shapes()`` or its id)."""
+        if isinstance(shape, str):
+            matches = [i for i, s in enumerate(self.shapes) if s.id() == shape]
+            if not matches:
+                raise KeyError(f"no shape with id {shape!r}")
+            shape = matches[0]
+        elif not isinstance(shape, (int, np.integer)):
+            shape = next(i for i, s in enumerate(self.shapes) if s == shape)
+        return np.nonzero(self.rex_shape == shape)[0]
+
+    def locate(self, si, active=True):
+        """(rex, uv, ok) of a surface hit: ok where the hit lies on the lit side of a rex surface.
+
+        ``uv`` is the analytic shape's ``si.uv`` or the triangle's barycentrics (b1, b2), clamped
+        into [0, 1)²; ``shape`` is the hit's shape index (``NO_SHAPE`` where none)."""
+        ok = mi.Bool(active) & si.is_valid()
+        sid = dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids - 1)
+        shape = dr.gather(mi.UInt32, self.d_id_to_shape, sid, ok)
+        shape = dr.select(ok, shape, NO_SHAPE)
+        ok &= shape != NO_SHAPE
+        kind = dr.gather(mi.UInt32, self.d_kind, shape, ok)
+        ok &= kind != KIND_NONE
+        sides = dr.gather(mi.UInt32, self.d_sides, shape, ok)
+        cos_wi = mi.Frame3f.cos_theta(si.wi)
+        back = cos_wi < 0
+        ok &= (cos_wi != 0) & (~back | (sides == 2))
+        is_tri = kind == KIND_TRI
+        region = dr.select(is_tri, si.prim_index, 0)
+        rex = dr.gather(mi.UInt32, self.d_rex_base, shape, ok) + region * sides \
+            + dr.select(back & (sides == 2), mi.UInt32(1), mi.UInt32(0))
+
+        tri_ok = ok & is_tri
+        tid = dr.gather(mi.UInt32, self.d_tri_base, shape, tri_ok) + si.prim_index
+        p0 = dr.gather(mi.Point3f, self.d_tri_p0, tid, tri_ok)
+        e1 = dr.gather(mi.Vector3f, self.d_tri_e1, tid, tri_ok)
+        e2 = dr.gather(mi.Vector3f, self.d_tri_e2, tid, tri_ok)
+        d = si.p - p0
+        d00, d01, d11 = dr.dot(e1, e1), dr.dot(e1, e2), dr.dot(e2, e2)
+        d20, d21 = dr.dot(d, e1), dr.dot(d, e2)
+        den = d00 * d11 - d01 * d01
+        good = den > 0
+        inv = dr.select(good, dr.rcp(dr.select(good, den, 1.0)), 0.0)
+        b1 = dr.select(good, (d11 * d20 - d01 * d21) * inv, 1.0 / 3.0)
+        b2 = dr.select(good, (d00 * d21 - d01 * d20) * inv, 1.0 / 3.0)
+        u = dr.select(is_tri, b1, si.uv.x)
+        v = dr.select(is_tri, b2, si.uv.y)
+        u = dr.clip(dr.select(dr.isfinite(u), u, 0.5), 0.0, ONE_MINUS_EPS)
+        v = dr.clip(dr.select(dr.isfinite(v), v, 0.5), 0.0, ONE_MINUS_EPS)
+        return dr.select(ok, rex, 0), mi.Point2f(u, v), ok
+
+    def jacobian(self, si, rex, active):
+        """World area per unit parameter area at a hit: |∂p/∂u × ∂p/∂v| or 2·A(triangle)."""
+        shape = dr.gather(mi.UInt32, self.d_id_to_shape,
+                          dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids - 1),
+                          active)
+        kind = dr.gather(mi.UInt32, self.d_kind, shape, active)
+        tid = dr.gather(mi.UInt32, self.d_tri_base, shape, active) + si.prim_index
+        tri = dr.gather(mi.Float, self.d_tri_area2, tid, active & (kind == KIND_TRI))
+        return dr.select(kind == KIND_TRI, tri, dr.norm(dr.cross(si.dp_du, si.dp_dv)))
+
+    def shape_index(self, si, active):
+        sid = dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids - 1)
+        return dr.select(active & si.is_valid(),
+                         dr.gather(mi.UInt32, self.d_id_to_shape, sid, active), NO_SHAPE)
+
+    def size_cell(self, rex, uv, active):
+        """Index of the size-pass cell of ``rex`` holding ``uv``."""
+        level = dr.gather(mi.UInt32, self.d_size_level, rex, active)
+        res = mi.UInt32(1) << level
+        fres = mi.Float(res)
+        ix = dr.minimum(mi.UInt32(uv.x * fres), res - 1)
+        iy = dr.minimum(mi.UInt32(uv.y * fres), res - 1)
+        return dr.gather(mi.UInt32, self.d_size_offset, rex, active) + iy * res + ix
+
+    def size_cell_np(self, rex, u, v):
+        level = self.rex_size_level[rex].astype(np.int64)
+        res = np.left_shift(1, level)
+        ix = np.minimum((u * res).astype(np.int64), res - 1)
+        iy = np.minimum((v * res).astype(np.int64), res - 1)
+        return self.rex_size_offset[rex] + iy * res + ix
+
+    def bucket_area(self, rex, level, ix, iy):
+        """Exact world area of the parameter square [ix, ix+1]·h × [iy, iy+1]·h, h = 2^-level."""
+        rex = np.asarray(rex, np.int64)
+        level = np.asarray(level, np.int64)
+        ix = np.asarray(ix, np.float64)
+        iy = np.asarray(iy, np.float64)
+        h = np.ldexp(1.0, -level)
+        u0, v0 = ix * h, iy * h
+        A = self.rex_area[rex]
+        rule = self.rex_area_rule[rex]
+        flat = A * h * h
+        sphere = 0.5 * A * h * (np.cos(np.pi * v0) - np.cos(np.pi * (v0 + h)))
+        disk = A * ((u0 + h) ** 2 - u0**2) * h
+        # barycentric square: the triangle b1 + b2 ≤ 1 covers a dyadic cell fully, half or not
+        s = np.asarray(ix + iy, np.float64)
+        n = np.ldexp(1.0, level)
+        frac = np.where(s + 2 <= n, 1.0, np.where(s + 1 == n, 0.5, 0.0))
+        tri = 2.0 * A * h * h * frac
+        return np.select([rule == AREA_SPHERE, rule == AREA_DISK, rule == AREA_TRI],
+                         [sphere, disk, tri], flat)
+
+
+# ---------------------------------------------------------------------------------------------
+# Size pass (§3.4.1)
+# ---------------------------------------------------------------------------------------------
+@dr.syntax
+def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max_level, sampler):
+    """Follow delta/glossy bounces to the first rex hit; scatter-max its cap level + 1."""
+    ctx = mi.BSDFContext()
+    ray = mi.Ray3f(ray)
+    t_total = mi.Float(0.0)
+    depth = mi.UInt32(0)
+    n_rays = mi.UInt32(0)
+    active = mi.Bool(True)
+    while dr.hint(active, label="rex_size_pass"):
+        si = scene.ray_intersect(ray, active)
+        n_rays += dr.select(active, mi.UInt32(1), mi.UInt32(0))
+        valid = active & si.is_valid()
+        t_total += dr.select(valid, si.t, 0.0)
+        rex, uv, at_rex = tables.locate(si, valid)
+        # the pixel's footprint: its differential spread carried over the path length,
+        # projected along the ray onto the tangent plane (curvature of mirrors ignored)
+        n = si.sh_frame.n
+        dn = dr.dot(ray.d, n)
+        dn = dr.select(dr.abs(dn) > 1e-6, dn, 1e-6)
+        vx = spread_o[0] + t_total * spread_d[0]
+        vy = spread_o[1] + t_total * spread_d[1]
+        vx = vx - ray.d * (dr.dot(vx, n) / dn)
+        vy = vy - ray.d * (dr.dot(vy, n) / dn)
+        area_world = dr.norm(dr.cross(vx, vy))
+        J = tables.jacobian(si, rex, at_rex)
+        side = dr.sqrt(dr.maximum(area_world, 1e-30) / dr.maximum(J, 1e-30)) * bucket_pixels
+        level = dr.ceil(dr.log2(dr.rcp(dr.maximum(side, 1e-30))))
+        level = mi.UInt32(dr.clip(dr.select(dr.isfinite(level), level, 0.0), 0.0, max_level))
+        cell = tables.size_cell(rex, uv, at_rex)
+        dr.scatter_reduce(dr.ReduceOp.Max, caps, level + 1, cell, at_rex)
+
+        bsdf = si.bsdf(ray)
+        go_on = valid & ~at_rex & (tables.shape_index(si, valid) != NO_SHAPE) \
+            & (depth + 1 < MAX_CHAIN)
+        bs, w = bsdf.sample(ctx, si, sampler.next_1d(go_on), sampler.next_2d(go_on), go_on)
+        ray = si.spawn_ray(si.to_world(bs.wo))
+        depth += 1
+        active = go_on & (bs.pdf > 0) & (dr.max(w) > 0)
+        active &= ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse) | \
+            mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) | \
+            mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy)
+    return n_rays
+
+
+def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor=None):
+    """Per size cell, the finest rex level worth resolving: the finest any eye sample there asked
+    for (footprints through curved mirrors and lenses are underestimated: finer, never coarser).
+
+    Returns (cap level per size cell, seen per rex, eye rays traced)."""
+    if sensor is None:
+        sensors = scene.sensors()
+        sensor = sensors[0] if len(sensors) else None
+    if sensor is None or tables.count == 0:
+        cap = np.full(tables.size_cells, min(8, settings.max_level), np.int64)
+        return cap, np.ones(tables.count, bool), 0
+    film = sensor.film()
+    w, h = (int(x) for x in film.crop_size())
+    spp = settings.size_spp
+    n = w * h * spp
+    sampler = _sampler(_seed(seed, _SALT_SIZE), n)
+    idx = dr.arange(mi.UInt32, n)
+    pixel = idx // spp
+    pos = mi.Vector2f(mi.Float(pixel % w), mi.Float(pixel // w)) + sampler.next_2d()
+    pos = pos / mi.ScalarVector2f(w, h)
+    ray, _ = sensor.sample_ray_differential(0.0, 0.5, mi.Point2f(pos), mi.Point2f(0.5, 0.5))
+    spread_o = (ray.o_x - ray.o, ray.o_y - ray.o)
+    spread_d = (ray.d_x - ray.d, ray.d_y - ray.d)
+    caps = dr.zeros(mi.UInt32, tables.size_cells + 1)
+    n_rays = _size_trace(scene, tables, mi.Ray3f(ray), spread_o, spread_d, caps,
+                         mi.Float(settings.bucket_pixels), float(settings.max_level), sampler)
+    caps_np = np.asarray(caps, np.int64)[:-1] - 1  # −1: unseen
+    rays = int(dr.sum(n_rays)[0])
+
+    # unseen cells of a seen rex take the rex's coarsest seen level; unseen rexes level 0
+    rex_of_cell = np.repeat(np.arange(tables.count), 4 ** tables.rex_size_level.astype(np.int64))
+    seen_cell = caps_np >= 0
+    coarsest = np.full(tables.count, np.iinfo(np.int64).max)
+    np.minimum.at(coarsest, rex_of_cell[seen_cell], caps_np[seen_cell])
+    seen = coarsest != np.iinfo(np.int64).max
+    fill = np.where(seen, coarsest, 0)
+    cap = np.where(seen_cell, caps_np, fill[rex_of_cell])
+    return cap, seen, rays
+
+
+# ---------------------------------------------------------------------------------------------
+# Light pass (§3.3.1, §4.1): emitters, light quadtree, pilot rays, photons
+# ---------------------------------------------------------------------------------------------
+def probe_emitters(scene, seed, n_probe=256):
+    """Power of every emitter (mean ``sample_ray`` weight) and which 2-D sample the light
+    quadtree adapts: 3 (``sample3``) where it changes the ray, else 2."""
+    emitters = scene.emitters()
+    E = len(emitters)
+    if E == 0:
+        return np.zeros(0), np.zeros(0, np.int64)
+    idx = dr.arange(mi.UInt32, E * n_probe) // n_probe
+    ep = dr.gather(mi.EmitterPtr, scene.emitters_dr(), idx)
+    sampler = _sampler(_seed(seed, _SALT_PROBE), E * n_probe)
+    s2, s3, s3b = sampler.next_2d(), sampler.next_2d(), sampler.next_2d()
+    ray_a, w = ep.sample_ray(0.0, 0.5, s2, s3)
+    ray_b, _ = ep.sample_ray(0.0, 0.5, s2, s3b)
+    moved = dr.norm(ray_a.d - ray_b.d) + dr.norm(ray_a.o - ray_b.o)
+    dr.eval(w, moved)
+    w_np = np.stack([np.asarray(w[c], np.float64) for c in range(3)], axis=1)
+    w_np = np.where(np.isfinite(w_np), w_np, 0.0)
+    power = w_np.mean(axis=1).reshape(E, n_probe).mean(axis=1)
+    moved_np = np.asarray(moved, np.float64).reshape(E, n_probe)
+    uses3 = (moved_np > 1e-6).any(axis=1)
+    return power, np.where(uses3, 3, 2)
+
+
+@dr.syntax
+def _pilot_trace(scene, tables, ray, sampler):
+    """A light ray to its first rex hit: (path signature, hit point, rex, hit?)."""
+    ctx = mi.BSDFContext(mi.TransportMode.Importance)
+    ray = mi.Ray3f(ray)
+    sig = mi.UInt32(2166136261)
+    pos = mi.Point3f(0.0)
+    rex_hit = mi.UInt32(0)
+    hit = mi.Bool(False)
+    depth = mi.UInt32(0)
+    n_rays = mi.UInt32(0)
+    active = mi.Bool(True)
+    while dr.hint(active, label="rex_pilot"):
+        si = scene.ray_intersect(ray, active)
+        n_rays += dr.select(active, mi.UInt32(1), mi.UInt32(0))
+        valid = active & si.is_valid()
+        shape = tables.shape_index(si, valid)
+        sig = dr.select(active, (sig ^ dr.select(valid, shape + 1, 0x9E3779B9)) * 16777619, sig)
+        rex, uv, at_rex = tables.locate(si, valid)
+        pos = dr.select(at_rex, si.p, pos)
+        rex_hit = dr.select(at_rex, rex, rex_hit)
+        hit |= at_rex
+        bsdf = si.bsdf(ray)
+        go_on = valid & ~at_rex & (depth + 1 < MAX_CHAIN)
+        bs, w = bsdf.sample(ctx, si, sampler.next_1d(go_on), sampler.next_2d(go_on), go_on)
+        ray = si.spawn_ray(si.to_world(bs.wo))
+        depth += 1
+        alive = (bs.pdf > 0) & (dr.max(w) > 0)
+        sig = dr.select(go_on & ~alive, (sig ^ 0x85EBCA6B) * 16777619, sig)
+        active = go_on & alive
+    return sig, pos, rex_hit, hit, n_rays
+
+
+@dr.syntax
+def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity, keep_direct,
+                  max_depth, rr_depth):
+    """Photons from the lights: deposit Φ at every rex hit, scatter by the hit's BSDF.
+
+    Records (rex, u, v, Φ, flags) go to slot ``scatter_inc(counter)`` when below ``capacity``."""
+    rec_rex, rec_u, rec_v, rec_flux, rec_flag = records
+    ctx = mi.BSDFContext(mi.TransportMode.Importance)
+    ray = mi.Ray3f(ray)
+    flux = mi.Color3f(flux)
+    beta = mi.Color3f(1.0)
+    depth = mi.UInt32(0)
+    n_rays = mi.UInt32(0)
+    first_hit = mi.Bool(False)
+    active = dr.max(flux) > 0
+    while dr.hint(active, label="rex_photons"):
+        si = scene.ray_intersect(ray, active)
+        n_rays += dr.select(active, mi.UInt32(1), mi.UInt32(0))
+        valid = active & si.is_valid()
+        first_hit |= valid & (depth == 0)
+        rex, uv, at_rex = tables.locate(si, valid)
+        deposit = at_rex & (keep_direct | (depth > 0)) & (depth + 2 <= max_depth)
+        slot = dr.scatter_inc(counter, mi.UInt32(0), deposit)
+        write = deposit & (slot < capacity)
+        dr.scatter(rec_rex, rex, slot, write)
+        dr.scatter(rec_u, uv.x, slot, write)
+        dr.scatter(rec_v, uv.y, slot, write)
+        Phi = flux * beta
+        for c in range(3):
+            dr.scatter(rec_flux, Phi[c], slot * 3 + c, write)
+        flag = dr.select(depth == 0, mi.UInt32(FLAG_DIRECT), mi.UInt32(0))
+        dr.scatter(rec_flag, flag, slot, write)
+
+        bsdf = si.bsdf(ray)
+        bs, w = bsdf.sample(ctx, si, sampler.next_1d(valid), sampler.next_2d(valid), valid)
+        wo = si.to_world(bs.wo)
+        # geometric-normal consistency and the adjoint shading-normal correction (Veach p. 155)
+        wi_geo = dr.dot(si.n, -ray.d)
+        wo_geo = dr.dot(si.n, wo)
+        cos_wi = mi.Frame3f.cos_theta(si.wi)
+        cos_wo = mi.Frame3f.cos_theta(bs.wo)
+        good = (wi_geo * cos_wi > 0) & (wo_geo * cos_wo > 0)
+        corr = dr.abs((cos_wi * wo_geo) / dr.select(good, cos_wo * wi_geo, 1.0))
+        beta *= dr.select(good, w * corr, 0.0)
+        ray = si.spawn_ray(wo)
+        depth += 1
+        alive = valid & good & (bs.pdf > 0) & (dr.max(beta) > 0) & (depth + 2 <= max_depth)
+        rr = alive & (depth >= rr_depth)
+        q = dr.minimum(dr.max(beta), 0.95)
+        survive = ~rr | (sampler.next_1d(rr) < q)
+        beta = dr.select(rr, beta * dr.rcp(dr.maximum(q, 1e-30)), beta)
+        active = alive & survive
+    return n_rays, first_hit
+
+
+class LightTree:
+    """Adaptive light quadtrees of all emitters, as flat numpy arrays (§4.0.5, Fig. 6).
+
+    Node (emitter e, level, ix, iy) covers [ix, ix+1]·2^-level × [iy, iy+1]·2^-level of the
+    emitter's adapted 2-D sample; each node sends one jittered pilot ray when created."""
+
+    def __init__(self):
+        self.em = np.zeros(0, np.int64)
+        self.lev = np.zeros(0, np.int64)
+        self.ix = np.zeros(0, np.int64)
+        self.iy = np.zeros(0, np.int64)
+        self.leaf = np.zeros(0, bool)
+        self.sig = np.zeros(0, np.uint32)
+        self.pos = np.zeros((0, 3), np.float32)
+        self.hit = np.zeros(0, bool)
+        self.seen = np.zeros(0, bool)
+        self._keys = np.zeros(0, np.int64)
+        self._order = np.zeros(0, np.int64)
+
+    @staticmethod
+    def key(em, lev, ix, iy):
+        return (np.asarray(em, np.int64) << 43) | (np.asarray(lev, np.int64) << 38) \
+            | (np.asarray(ix, np.int64) << 19) | np.asarray(iy, np.int64)
+
+    def append(self, em, lev, ix, iy, sig, pos, hit, seen):
+        self.em = np.concatenate([self.em, em])
+        self.lev = np.concatenate([self.lev, lev])
+        self.ix = np.concatenate([self.ix, ix])
+        self.iy = np.concatenate([self.iy, iy])
+        self.leaf = np.concatenate([self.leaf, np.ones(len(em), bool)])
+        self.sig = np.concatenate([self.sig, sig])
+        self.pos = np.concatenate([self.pos, pos])
+        self.hit = np.concatenate([self.hit, hit])
+        self.seen = np.concatenate([self.seen, seen])
+        keys = self.key(self.em, self.lev, self.ix, self.iy)
+        self._order = np.argsort(keys, kind="stable")
+        self._keys = keys[self._order]
+
+    def find(self, em, lev, ix, iy):
+        """Index of the node (em, lev, ix, iy), −1 where there is none."""
+        k = self.key(em, lev, ix, iy)
+        if len(self._keys) == 0:
+            return np.full(len(k), -1, np.int64)
+        i = np.minimum(np.searchsorted(self._keys, k), len(self._keys) - 1)
+        return np.where(self._keys[i] == k, self._order[i], -1)
+
+    def find_covering(self, em, lev, ix, iy, min_lev):
+        """The deepest existing node at level ≤ ``lev`` covering the square (em, lev, ix, iy)."""
+        res = np.full(len(em), -1, np.int64)
+        for up in range(0, int(lev.max() - min_lev.min()) + 1 if len(lev) else 0):
+            todo = (res < 0) & (lev - up >= min_lev)
+            if not todo.any():
+                break
+            j = self.find(em[todo], lev[todo] - up, ix[todo] >> up, iy[todo] >> up)
+            res[np.nonzero(todo)[0]] = j
+        return res
+
+
+def _padded(rng, em, n_em):
+    """A stratified 2-D sample per lane: lanes of one emitter take distinct jittered strata of a
+    ⌈√n⌉² grid in random order (uniform marginals, hence unbiased)."""
+    u = np.empty((len(em), 2))
+    order = np.argsort(em, kind="stable")
+    counts = np.bincount(em, minlength=n_em)
+    start = 0
+    for e in np.nonzero(counts)[0]:  # per emitter, not per photon
+        c = int(counts[e])
+        m = int(math.ceil(math.sqrt(c)))
+        strata = rng.permutation(m * m)[:c]
+        lanes = order[start:start + c]
+        u[lanes, 0] = (strata % m + rng.random(c)) / m
+        u[lanes, 1] = (strata // m + rng.random(c)) / m
+        start += c
+    return u
+
+
+def _emitter_rays(scene, em, adapt_dim, s_adapt, s_other):
+    ep = dr.gather(mi.EmitterPtr, scene.emitters_dr(), mi.UInt32(em.astype(np.uint32)))
+    use3 = adapt_dim[em] == 3
+    s2 = np.where(use3[:, None], s_other, s_adapt)
+    s3 = np.where(use3[:, None], s_adapt, s_other)
+    s2 = np.clip(s2, 0.0, ONE_MINUS_EPS).astype(np.float32)
+    s3 = np.clip(s3, 0.0, ONE_MINUS_EPS).astype(np.float32)
+    return ep.sample_ray(0.0, 0.5, mi.Point2f(s2[:, 0], s2[:, 1]), mi.Point2f(s3[:, 0], s3[:, 1]))
+
+
+def _pilot(scene, tables, seen_rex, adapt_dim, em, lev, ix, iy, rng, seed, n_em):
+    """Trace one jittered pilot ray per new light node."""
+    h = np.ldexp(1.0, -lev)
+    s_adapt = np.stack([(ix + rng.random(len(ix))) * h, (iy + rng.random(len(iy))) * h], 1)
+    s_other = _padded(rng, em, n_em)
+    ray, _ = _emitter_rays(scene, em, adapt_dim, s_adapt, s_other)
+    sampler = _sampler(seed, len(em))
+    sig, pos, rex, hit, n_rays = _pilot_trace(scene, tables, ray, sampler)
+    dr.eval(sig, pos, rex, hit, n_rays)  # one kernel for all outputs
+    sig = np.asarray(sig, np.uint32)
+    pos = np.stack([np.asarray(pos[c], np.float32) for c in range(3)], 1)
+    hit = np.asarray(hit, bool)
+    rex = np.asarray(rex, np.int64)
+    seen = hit & (seen_rex[np.minimum(rex, len(seen_rex) - 1)] if len(seen_rex) else False)
+    return sig, pos, hit, seen, int(dr.sum(n_rays)[0])
+
+
+def _children(em, lev, ix, iy):
+    e4 = np.repeat(em, 4)
+    l4 = np.repeat(lev + 1, 4)
+    q = np.tile(np.arange(4), len(em))
+    return e4, l4, np.repeat(ix * 2, 4) + (q & 1), np.repeat(iy * 2, 4) + (q >> 1)
+
+
+def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim, diag):
+    """Adapt every emitter's light quadtree level by level (§4.1 steps 2–3 on pilot rays).
+
+    Returns the tree and the number of pilot rays."""
+    rng = np.random.default_rng(_seed(seed, _SALT_NUMPY, 1))
+    n_em = len(budgets)
+    active_em = np.nonzero(budgets > 0)[0]
+    base = np.clip(np.floor(np.log(np.maximum(budgets, 1) / 4.0) / np.log(4.0)), 0,
+                   MAX_LIGHT_LEVEL).astype(np.int64)
+    top = np.minimum(base + settings.light_levels, MAX_LIGHT_LEVEL)
+    tree = LightTree()
+    counts = 4 ** base[active_em]
+    em = np.repeat(active_em, counts)
+    local = np.arange(len(em)) - np.repeat(np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+    lev = base[em]
+    res = np.left_shift(1, lev)
+    ix, iy = local % res, local // res
+    pilot_rays = 0
+    thresh2 = (settings.light_split_dist * diag) ** 2
+    for step in range(settings.light_levels + 1):
+        sig, pos, hit, seen, nr = _pilot(scene, tables, seen_rex, adapt_dim, em, lev, ix, iy,
+                                         rng, _seed(seed, _SALT_PILOT, step), n_em)
+        pilot_rays += nr
+        first = len(tree.em)
+        tree.append(em, lev, ix, iy, sig, pos, hit, seen)
+        if step == settings.light_levels:
+            break
+        # light marking (§4.1): the nodes just traced, against their four neighbours
+        cand = np.arange(first, len(tree.em))
+        cand = cand[tree.lev[cand] < top[tree.em[cand]]]
+        mark = np.zeros(len(cand), bool)
+        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            nx, ny = tree.ix[cand] + dx, tree.iy[cand] + dy
+            n = np.left_shift(1, tree.lev[cand])
+            inside = (nx >= 0) & (ny >= 0) & (nx < n) & (ny < n)
+            j = np.full(len(cand), -1, np.int64)
+            j[inside] = tree.find_covering(tree.em[cand][inside], tree.lev[cand][inside],
+                                           nx[inside], ny[inside], base[tree.em[cand][inside]])
+            ok = j >= 0
+            jj = np.where(ok, j, 0)
+            differ = tree.sig[cand] != tree.sig[jj]
+            both = tree.hit[cand] & tree.hit[jj]
+            far = both & (np.sum((tree.pos[cand] - tree.pos[jj]) ** 2, 1) > thresh2)
+            relevant = tree.seen[cand] | tree.seen[jj]
+            mark |= ok & (differ | far) & relevant
+        marked = cand[mark]
+        # the photon budget: at most (budget − leaves)/3 splits per emitter, chosen at random
+        leaves = np.bincount(tree.em[tree.leaf], minlength=n_em)
+        allowed = np.maximum((budgets - leaves) // 3, 0)
+        pri = rng.random(len(marked))
+        order = np.lexsort((pri, tree.em[marked]))
+        marked = marked[order]
+        e_m = tree.em[marked]
+        start = np.searchsorted(e_m, np.arange(n_em))
+        rank = np.arange(len(marked)) - start[e_m]
+        marked = marked[rank < allowed[e_m]]
+        if len(marked) == 0:
+            break
+        # restricted quadtree: coarser leaves beside a split node split as well
+        extra = []
+        for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            nx, ny = tree.ix[marked] + dx, tree.iy[marked] + dy
+            n = np.left_shift(1, tree.lev[marked])
+            inside = (nx >= 0) & (ny >= 0) & (nx < n) & (ny < n)
+            mk = marked[inside]
+            same = tree.find(tree.em[mk], tree.lev[mk], nx[inside], ny[inside])
+            coarse = tree.find(tree.em[mk], tree.lev[mk] - 1, nx[inside] >> 1, ny[inside] >> 1)
+            extra.append(coarse[(same < 0) & (coarse >= 0)])
+        extra = np.unique(np.concatenate(extra)) if extra else np.zeros(0, np.int64)
+        extra = extra[tree.leaf[extra]]
+        split = np.unique(np.concatenate([marked, extra]))
+        tree.leaf[split] = False
+        em, lev, ix, iy = _children(tree.em[split], tree.lev[split], tree.ix[split],
+                                    tree.iy[split])
+    return tree, pilot_rays
+
+
+def light_pass(scene, tables, seen_rex, settings, seed, diag, keep_direct):
+    """Adapt the light quadtrees, then shoot the final photons; returns records and stats."""
+    t0 = time.perf_counter()
+    power, adapt_dim = probe_emitters(scene, seed)
+    stats = {"emitters": len(power), "light_rays": 0, "pilot_rays": 0, "photons": 0,
+             "light_hit_percent": 0.0, "light_tree_leaves": 0, "light_tree_max_level": 0}
+    empty = {"rex": np.zeros(0, np.uint32), "u": np.zeros(0, np.float32),
+             "v": np.zeros(0, np.float32), "flux": np.zeros((0, 3), np.float32),
+             "flag": np.zeros(0, np.uint8)}
+    total = float(power.sum()) if len(power) else 0.0
+    if total <= 0 or not np.isfinite(total):
+        stats["light_seconds"] = time.perf_counter() - t0
+        return empty, stats
+    share = np.where(np.isfinite(power) & (power > 0), power, 0.0) / total
+    budgets = np.where(share > 0, np.maximum(np.round(settings.photons * share), 16), 0)
+    budgets = budgets.astype(np.int64)
+    # the light quadtree's leaves each shoot 4 photons (one per quadrant)
+    tree, pilot_rays = build_light_tree(scene, tables, seen_rex, settings, seed,
+                                        np.where(budgets > 0, np.maximum(budgets // 4, 1), 0),
+                                        adapt_dim, diag)
+
+    # final shoot: every leaf afresh, one jittered photon per quadrant, `reps` times so that
+    # each emitter uses its budget
+    leaves = np.nonzero(tree.leaf)[0]
+    n_leaves = np.bincount(tree.em[leaves], minlength=len(budgets))
+    reps = np.maximum(1, np.round(budgets / np.maximum(4 * n_leaves, 1))).astype(np.int64)
+    lanes = np.repeat(np.repeat(leaves, reps[tree.em[leaves]]), 4)
+    q = np.tile(np.arange(4), len(lanes) // 4)
+    rng = np.random.default_rng(_seed(seed, _SALT_NUMPY, 2))
+    em = tree.em[lanes]
+    h = np.ldexp(1.0, -(tree.lev[lanes] + 1))
+    scale = h * h / reps[em]
+    s_adapt = np.stack([(2 * tree.ix[lanes] + (q & 1) + rng.random(len(lanes))) * h,
+                        (2 * tree.iy[lanes] + (q >> 1) + rng.random(len(lanes))) * h], 1)
+    s_other = _padded(rng, em, len(budgets))
+    perm = rng.permutation(len(lanes))  # batches mix emitters and tree regions
+
+    max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
+    parts = {k: [] for k in empty}
+    rays = hits = 0
+    with progress(total=len(lanes), desc="rex light pass", unit="photon") as bar:
+        for b, start in enumerate(range(0, len(lanes), PHOTON_BATCH)):
+            sel = perm[start:start + PHOTON_BATCH]
+            ray, w = _emitter_rays(scene, em[sel], adapt_dim, s_adapt[sel], s_other[sel])
+            w = dr.select(dr.isfinite(w), w, 0.0)
+            flux = w * mi.Float(scale[sel].astype(np.float32))
+            capacity = 3 * len(sel)
+            while True:
+                recs = (dr.zeros(mi.UInt32, capacity), dr.zeros(mi.Float, capacity),
+                        dr.zeros(mi.Float, capacity), dr.zeros(mi.Float, 3 * capacity),
+                        dr.zeros(mi.UInt32, capacity))
+                counter = dr.zeros(mi.UInt32, 1)
+                sampler = _sampler(_seed(seed, _SALT_PHOTON, b), len(sel))
+                n_rays, first_hit = _photon_trace(
+                    scene, tables, ray, flux, sampler, recs, counter, capacity,
+                    mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth))
+                dr.eval(n_rays, first_hit, *recs)
+                count = int(counter[0])
+                if count <= capacity:
+                    break
+                capacity = count  # deterministic: the same seed gives the same records
+            rays += int(dr.sum(n_rays)[0])
+            hits += int(dr.count(first_hit)[0])
+            # compact records: 25 bytes each
+            parts["rex"].append(np.asarray(recs[0], np.uint32)[:count])
+            parts["u"].append(np.asarray(recs[1], np.float32)[:count])
+            parts["v"].append(np.asarray(recs[2], np.float32)[:count])
+            parts["flux"].append(np.asarray(recs[3], np.float32)[:3 * count].reshape(-1, 3))
+            parts["flag"].append(np.asarray(recs[4], np.uint8)[:count])
+            bar.update(len(sel))
+    records = {k: np.concatenate(v) if v else empty[k] for k, v in parts.items()}
+    stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=len(lanes),
+                 light_hit_percent=100.0 * hits / max(len(lanes), 1),
+                 light_tree_leaves=int(len(leaves)),
+                 light_tree_max_level=int(tree.lev.max()) if len(tree.lev) else 0,
+                 light_tree_min_level=int(tree.lev.min()) if len(tree.lev) else 0,
+                 light_tree_nodes=int(len(tree.lev)),
+                 light_seconds=time.perf_counter() - t0)
+    return records, stats
+
+
+# ---------------------------------------------------------------------------------------------
+# Rex quadtrees (§3.3, §4.0.5, Fig. 5) built from the photon records
+# ---------------------------------------------------------------------------------------------
+class Rexes:
+    """All rex quadtrees of a scene as flat node arrays (roots first: node r is rex r's root).
+
+    ``child[node]`` is the index of the first of its four children (quadrant qx + 2·qy) or LEAF.
+    Every node stores its bucket's world ``area``, photon ``count`` and irradiances ``E_direct``
+    (photons that came straight from a light) and ``E_indirect`` (all others) in W/m²."""
+
+    def __init__(self, tables, node_rex, level, ix, iy, child, count, flux_d, flux_i,
+                 exposure=None, exposure_rays=0):
+        self.tables = tables
+        self.exposure_rays = int(exposure_rays)
+        self.node_rex, self.level, self.ix, self.iy = node_rex, level, ix, iy
+        self.child = child
+        self.count = count
+        self.param_area = tables.bucket_area(node_rex, level, ix, iy) if len(node_rex) else \
+            np.zeros(0)
+        self.exposure = np.ones(len(child)) if exposure is None else exposure
+        self.area = self.param_area * self.exposure
+        self.flux_direct, self.flux_indirect = flux_d, flux_i
+        self.E_direct = units.irradiance_from_flux(flux_d, self.area)
+        self.E_indirect = units.irradiance_from_flux(flux_i, self.area)
+        pad = np.zeros(1)
+        self.d_child = mi.UInt32(np.append(child, LEAF).astype(np.uint32))
+        self.d_area = mi.Float(np.append(self.area, pad).astype(np.float32))
+        self.d_E_direct = mi.Float(np.append(self.E_direct.ravel(), np.zeros(3)).astype(np.float32))
+        self.d_E_indirect = mi.Float(
+            np.append(self.E_indirect.ravel(), np.zeros(3)).astype(np.float32))
+
+    # -- numpy views ----------------------------------------------------------------------------
+    @property
+    def n_nodes(self) -> int:
+        return int(len(self.child))
+
+    @property
+    def is_leaf(self):
+        return self.child == LEAF
+
+    @property
+    def n_leaves(self) -> int:
+        return int(np.count_nonzero(self.is_leaf))
+
+    @property
+    def max_depth(self) -> int:
+        return int(self.level.max()) if len(self.level) else 0
+
+    @property
+    def nbytes(self) -> int:
+        # per node on the device: child (4), area (4), two RGB irradiances (24)
+        return int(self.n_nodes * 32)
+
+    def leaves(self, rex=None) -> dict:
+        """The leaves (of one rex, or all) as numpy arrays: rex, level, u0, v0, size, area,
+        count, flux and irradiance (direct + indirect)."""
+        sel = self.is_leaf if rex is None else self.is_leaf & (self.node_rex == rex)
+        h = np.ldexp(1.0, -self.level[sel].astype(np.int64))
+        return {"node": np.nonzero(sel)[0], "rex": self.node_rex[sel], "level": self.level[sel],
+                "u0": self.ix[sel] * h, "v0": self.iy[sel] * h, "size": h,
+                "area": self.area[sel], "count": self.count[sel],
+                "flux": self.flux_direct[sel] + self.flux_indirect[sel],
+                "E": self.E_direct[sel] + self.E_indirect[sel],
+                "E_direct": self.E_direct[sel], "E_indirect": self.E_indirect[sel]}
+
+    # -- Dr.Jit lookups -------------------------------------------------------------------------
+    @dr.syntax
+    def descend(self, rex, u, v, active=True):
+        """(leaf node, level) of the bucket holding (u, v) in ``rex``."""
+        active = mi.Bool(active)
+        node = mi.UInt32(dr.select(active, rex, 0))
+        level = mi.UInt32(0)
+        c = dr.gather(mi.UInt32, self.d_child, node, active)
+        go = active & (c != LEAF)
+        while dr.hint(go, label="rex_descend"):
+            level = dr.select(go, level + 1, level)
+            scale = mi.Float(mi.UInt32(1) << level)
+            qx = mi.UInt32(u * scale) & 1
+            qy = mi.UInt32(v * scale) & 1
+            node = dr.select(go, c + qx + 2 * qy, node)
+            c = dr.gather(mi.UInt32, self.d_child, node, go)
+            go = go & (c != LEAF)
+        return node, level
+
+    def _value(self, node, active, w_direct, w_indirect):
+        """w_direct · E_direct + w_indirect · E_indirect of a node (weights: floats or lanes)."""
+        E = mi.Color3f(0.0)
+        if not (isinstance(w_direct, (int, float)) and w_direct == 0):
+            E += w_direct * dr.gather(mi.Color3f, self.d_E_direct, node, active)
+        if not (isinstance(w_indirect, (int, float)) and w_indirect == 0):
+            E += w_indirect * dr.gather(mi.Color3f, self.d_E_indirect, node, active)
+        return E
+
+    def irradiance(self, rex, uv, active=True, w_direct=1.0, w_indirect=1.0, smooth=True):
+        """Irradiance E [W/m²] at (rex, uv) and its leaf (node, level).
+
+        E = w_direct·E_direct + w_indirect·E_indirect, of the leaf bucket (``smooth=False``) or
+        interpolated bilinearly between the centres of the leaf and its neighbours."""
+        active = mi.Bool(active)
+        u, v = uv.x, uv.y
+        node, level = self.descend(rex, u, v, active)
+        E0 = self._value(node, active, w_direct, w_indirect)
+        if not smooth:
+            return E0, node, level
+        h = dr.rcp(mi.Float(mi.UInt32(1) << level))
+        cu = (dr.floor(u / h) + 0.5) * h
+        cv = (dr.floor(v / h) + 0.5) * h
+        su = dr.select(u >= cu, h, -h)
+        sv = dr.select(v >= cv, h, -h)
+        wu = dr.minimum(dr.abs(u - cu) / h, 0.5)
+        wv = dr.minimum(dr.abs(v - cv) / h, 0.5)
+        wrap = dr.gather(mi.UInt32, self.tables.d_wrap, rex, active)
+
+        def neighbour(du, dv):
+            nu, nv = cu + du, cv + dv
+            nu = dr.select((wrap & WRAP_U) != 0, nu - dr.floor(nu), nu)
+            nv = dr.select((wrap & WRAP_V) != 0, nv - dr.floor(nv), nv)
+            inside = active & (nu >= 0) & (nu < 1) & (nv >= 0) & (nv < 1)
+            n_node, _ = self.descend(rex, nu, nv, inside)
+            ok = inside & (dr.gather(mi.Float, self.d_area, n_node, inside) > 0)
+            return dr.select(ok, self._value(n_node, ok, w_direct, w_indirect), E0)
+
+        E = (1 - wu) * (1 - wv) * E0 + wu * (1 - wv) * neighbour(su, 0.0) \
+            + (1 - wu) * wv * neighbour(0.0, sv) + wu * wv * neighbour(su, sv)
+        return E, node, level
+
+
+def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
+    """Fraction of each bucket's area that is not buried inside closed geometry.
+
+    A box standing on a floor covers part of the floor's buckets; no photon lands there, so
+    E = ΣΦ / area would be too dark next to the box (the light leak of radiosity textures,
+    inverted). ``m`` stratified points per bucket are lifted off the surface by a hair and tested
+    with three rays (along the normal and both ways along a random tangent): a point all of whose
+    rays first hit a back face is inside a closed object. Returns the open fraction per node in
+    ``nodes`` (1 where nothing covers the bucket)."""
+    out = np.ones(len(nodes))
+    if len(nodes) == 0:
+        return out, 0
+    rng = np.random.default_rng(_seed(seed, _SALT_NUMPY, 3))
+    k = int(round(math.sqrt(m)))
+    lane_node = np.repeat(np.arange(len(nodes)), k * k)
+    sub = np.tile(np.arange(k * k), len(nodes))
+    h = np.ldexp(1.0, -level[nodes].astype(np.int64))[lane_node]
+    u = (ix[nodes][lane_node] + (sub % k + rng.random(len(sub))) / k) * h
+    v = (iy[nodes][lane_node] + (sub // k + rng.random(len(sub))) / k) * h
+    rex = node_rex[nodes][lane_node].astype(np.int64)
+    p = np.zeros((len(sub), 3))
+    n = np.zeros((len(sub), 3))
+    valid = np.zeros(len(sub), bool)
+    tri = tables.rex_tri[rex]
+    is_tri = tri >= 0
+    if is_tri.any():
+        t = tri[is_tri]
+        ut, vt = u[is_tri, None], v[is_tri, None]
+        p[is_tri] = tables.tri_p0[t] + ut * tables.tri_e1[t] + vt * tables.tri_e2[t]
+        nt = np.cross(tables.tri_e1[t], tables.tri_e2[t])
+        ln = np.linalg.norm(nt, axis=1, keepdims=True)
+        n[is_tri] = np.where(ln > 0, nt / np.where(ln > 0, ln, 1), 0)
+        valid[is_tri] = (ut[:, 0] + vt[:, 0] <= 1) & (ln[:, 0] > 0)
+    shapes = tables.rex_shape[rex]
+    for s_idx in np.unique(shapes[~is_tri]):  # analytic shapes, one vectorised call each
+        sel = np.nonzero((shapes == s_idx) & ~is_tri)[0]
+        try:
+            si = tables.shapes[int(s_idx)].eval_parameterization(
+                mi.Point2f(mi.Float(u[sel].astype(np.float32)),
+                           mi.Float(v[sel].astype(np.float32))))
+            dr.eval(si.p, si.n, si.t)
+        except Exception:  # a shape without a parameterisation: leave its buckets open
+            continue
+        p[sel] = np.stack([np.asarray(si.p[c], np.float64) for c in range(3)], 1)
+        n[sel] = np.stack([np.asarray(si.n[c], np.float64) for c in range(3)], 1)
+        valid[sel] = np.asarray(si.is_valid(), bool)
+    n = np.where((tables.rex_side[rex] == 1)[:, None], -n, n)
+    # a random tangent per point
+    a = np.where(np.abs(n[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    t1 = np.cross(n, a)
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-30)
+    t2 = np.cross(n, t1)
+    phi = rng.random(len(sub)) * 2 * math.pi
+    tan = np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2
+    eps = 1e-5 * (scene_diagonal(scene) + np.abs(p).max(axis=1, keepdims=True))
+    origin = p + n * eps
+    enclosed = valid.copy()
+    rays = 0
+    for d in (n, tan, -tan):
+        rays += int(np.count_nonzero(enclosed))
+        ray = mi.Ray3f(mi.Point3f(*(mi.Float(origin[:, c].astype(np.float32)) for c in range(3))),
+                       mi.Vector3f(*(mi.Float(d[:, c].astype(np.float32)) for c in range(3))))
+        si = scene.ray_intersect(ray, mi.Bool(enclosed))
+        back = si.is_valid() & (dr.dot(si.n, ray.d) > 0)
+        enclosed &= np.asarray(back, bool)
+    open_count = np.bincount(lane_node, weights=(valid & ~enclosed).astype(np.float64),
+                             minlength=len(nodes))
+    total = np.bincount(lane_node, weights=valid.astype(np.float64), minlength=len(nodes))
+    return np.where(total > 0, open_count / np.maximum(total, 1), 1.0), rays
+
+
+def build_rex_tree(tables, records, cap, settings, scene=None, seed=0) -> Rexes:
+    """Split every rex bucket holding more than ``split_limit`` photons, down to its size-pass cap
+    (§4.1 "rex subdivision"), all rexes at once, level by level; then deposit the records and,
+    given the scene, measure how much of each leaf is buried under closed objects."""
+    R = tables.count
+    rex = records["rex"].astype(np.int64)
+    u = records["u"].astype(np.float64)
+    v = records["v"].astype(np.float64)
+    rec_cap = cap[tables.size_cell_np(rex, u, v)] if len(rex) else np.zeros(0, np.int64)
+    rec_cap = np.minimum(rec_cap, settings.max_level)
+    node_rex = [np.arange(R, dtype=np.int64)]
+    level = [np.zeros(R, np.int64)]
+    ix = [np.zeros(R, np.int64)]
+    iy = [np.zeros(R, np.int64)]
+    child = [np.full(R, LEAF, np.int64)]
+    rec_node = rex.copy()
+    moving = np.ones(len(rex), bool)  # records whose node is at the current level
+    lvl_start, n_total = 0, R
+    for lev in range(MAX_LEVEL):
+        n_lev = n_total - lvl_start
+        if n_lev == 0 or not moving.any():
+            break
+        idx = rec_node[moving] - lvl_start
+        cnt = np.bincount(idx, minlength=n_lev)
+        elig = np.bincount(idx[rec_cap[moving] > lev], minlength=n_lev)
+        split = np.nonzero((cnt > settings.split_limit) & (elig > 0))[0]
+        if len(split) == 0:
+            break
+        # the nodes of level `lev` are the last block appended: give split ones four children
+        first = n_total + 4 * np.arange(len(split))
+        child[-1][split] = first
+        q = np.tile(np.arange(4), len(split))
+        node_rex.append(np.repeat(node_rex[-1][split], 4))
+        level.append(np.full(4 * len(split), lev + 1, np.int64))
+        ix.append(np.repeat(ix[-1][split] * 2, 4) + (q & 1))
+        iy.append(np.repeat(iy[-1][split] * 2, 4) + (q >> 1))
+        child.append(np.full(4 * len(split), LEAF, np.int64))
+        # move the records of split buckets into their quadrant
+        first_of = np.full(n_lev, -1, np.int64)
+        first_of[split] = first
+        mv = np.nonzero(moving)[0]
+        f = first_of[rec_node[mv] - lvl_start]
+        go = f >= 0
+        mv, f = mv[go], f[go]
+        scale = float(2 ** (lev + 1))
+        qx = (np.floor(u[mv] * scale).astype(np.int64)) & 1
+        qy = (np.floor(v[mv] * scale).astype(np.int64)) & 1
+        rec_node[mv] = f + qx + 2 * qy
+        moving = np.zeros(len(rex), bool)
+        moving[mv] = True
+        lvl_start, n_total = n_total, n_total + 4 * len(split)
+    node_rex = np.concatenate(node_rex)
+    level = np.concatenate(level)
+    ix, iy = np.concatenate(ix), np.concatenate(iy)
+    child = np.concatenate(child)
+
+    # deposit (§4.1): Dr.Jit scatter_reduce of every record's flux into its leaf, in 64-bit
+    # fixed point (integer sums do not depend on the order of the atomic adds: the rexes, hence
+    # the image, are the same bit for bit for the same seed)
+    n = len(child)
+    count = np.bincount(rec_node, minlength=n).astype(np.int64) if len(rex) else \
+        np.zeros(n, np.int64)
+    fmax = float(records["flux"].max()) if len(rex) else 0.0
+    quantum = fmax / 2.0**32 if fmax > 0 and np.isfinite(fmax) else 1.0
+    UInt64, Float64 = dr.uint64_array_t(mi.Float), dr.float64_array_t(mi.Float)
+    flux = {}
+    direct = (records["flag"] & FLAG_DIRECT) != 0
+    for name, sel in (("d", direct), ("i", ~direct)):
+        target = dr.zeros(UInt64, 3 * n + 3)
+        if sel.any():
+            idx = rec_node[sel]
+            for c in range(3):
+                q = dr.round(Float64(records["flux"][sel, c].astype(np.float64)) / quantum)
+                dr.scatter_reduce(dr.ReduceOp.Add, target, UInt64(q),
+                                  mi.UInt32((3 * idx + c).astype(np.uint32)))
+        flux[name] = np.asarray(target, np.float64)[:3 * n].reshape(n, 3) * quantum
+    exposure = np.ones(n)
+    exposure_rays = 0
+    if scene is not None:
+        leaves = np.nonzero(child == LEAF)[0]
+        f, exposure_rays = probe_exposure(scene, tables, node_rex, level, ix, iy, leaves, seed,
+                                          EXPOSURE_PROBES)
+        # a leaf that caught photons is open somewhere, however few probes found it open
+        exposure[leaves] = np.where(count[leaves] > 0, np.maximum(f, 0.5 / EXPOSURE_PROBES), f)
+    return Rexes(tables, node_rex.astype(np.uint32), level.astype(np.uint8), ix.astype(np.uint32),
+                 iy.astype(np.uint32), child.astype(np.uint32), count, flux["d"], flux["i"],
+                 exposure, exposure_rays)
+
+
+# ---------------------------------------------------------------------------------------------
+# The whole prepass
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class RexPrepass:
+    """What the rex integrator renders from: the tables, the rexes and the passes' statistics."""
+
+    tables: RexTables
+    rexes: Rexes
+    cap: np.ndarray
+    seen: np.ndarray
+    settings: RexSettings
+    stats: dict
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.tables.nbytes + self.rexes.nbytes + self.cap.size)
+
+
+def scene_diagonal(scene) -> float:
+    bbox = scene.bbox()
+    if not bbox.valid():
+        return 1.0
+    d = float(dr.norm(bbox.extents()))
+    return d if d > 0 and math.isfinite(d) else 1.0
+
+
+def build_rexes(scene, settings: RexSettings, seed: int = 0, sensor=None) -> RexPrepass:
+    """Size pass, light pass and rex build for ``scene`` (all random numbers from ``seed``)."""
+    if settings.direct not in ("rex", "shadow"):
+        raise ValueError(f"direct={settings.direct!r}: expected 'rex' or 'shadow'")
+    t0 = time.perf_counter()
+    tables = RexTables(scene)
+    cap, seen, size_rays = size_pass(scene, tables, settings, seed, sensor)
+    dr.sync_thread()
+    t1 = time.perf_counter()
+    records, light_stats = light_pass(scene, tables, seen, settings, seed,
+                                      scene_diagonal(scene), settings.direct == "rex")
+    t2 = time.perf_counter()
+    rexes = build_rex_tree(tables, records, cap, settings, scene, seed)
+    dr.sync_thread()
+    t3 = time.perf_counter()
+    stats = dict(light_stats)
+    stats.update(size_rays=size_rays, size_seconds=t1 - t0, light_seconds=t2 - t1,
+                 rex_build_seconds=t3 - t2, rexes=tables.count, rex_nodes=rexes.n_nodes,
+                 rex_leaves=rexes.n_leaves, rex_max_depth=rexes.max_depth,
+                 photon_records=int(len(records["rex"])), exposure_rays=rexes.exposure_rays,
+                 prepass_rays=size_rays + light_stats["light_rays"] + rexes.exposure_rays)
+    return RexPrepass(tables, rexes, cap, seen, settings, stats)
