@@ -154,17 +154,22 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
         return self.r_thresh_rel * float(dr.norm(scene.bbox().extents()))
 
     # -- gather -----------------------------------------------------------------------------
-    def far_reflected(self, ray, si, far):
-        """B_r/π of the patch a far gather ray sees, in the prepass scene (GSII §2.5).
+    def far_reflected(self, ray, si, gather_ray, r_thresh):
+        """(B_r/π of the patch a far gather ray sees, far mask) — GSII §2.5.
 
-        Virtual luminaires return 0: they are sampled explicitly."""
+        A gather ray is *far* when it travels at least ``r_thresh`` and lands on a diffuse
+        patch; with a ``prepass_scene`` the ray is traced again in the massing model and reads
+        its patches. Virtual luminaires give 0: they are sampled explicitly. The patch is looked
+        up once per hit."""
         sol = self.structure
-        if self.gather_scene is not None and self.prepass_scene_path:
-            si = self.gather_scene.ray_intersect(ray, far)
-            far = far & si.is_valid()
+        far = gather_ray & si.is_valid() & (si.t >= r_thresh)
         pid = sol.patches.lookup(si, far)
-        far = far & ~dr.gather(mi.Bool, self.vl_mask, pid, far)
-        return sol.reflected_radiance(si, far)
+        far &= sol.patches.gather("is_diffuse", pid, far)
+        if self.prepass_scene_path:
+            si_massing = self.gather_scene.ray_intersect(ray, far)
+            pid = sol.patches.lookup(si_massing, far & si_massing.is_valid())
+        counted = far & ~dr.gather(mi.Bool, self.vl_mask, pid, far)
+        return sol.patch_reflected_radiance(pid, counted), far
 
     def sample_virtual(self, scene, sampler, si, bsdf, ctx, r_thresh, active):
         """One explicit sample of a virtual luminaire: f · (B_r/π) · G / pdf, for |y−x| ≥ r_thresh."""
@@ -233,9 +238,9 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
                            Le if want_indirect else 0.0)
 
             # Far gather ray: reflected radiosity of the patch it hits ends the path (§2.5).
-            far = gather_ray & si.is_valid() & (si.t >= r_thresh) & sol.patches.is_diffuse_at(si, active)
+            L_far, far = self.far_reflected(ray, si, gather_ray, r_thresh)
             if want_indirect:
-                L += beta * self.far_reflected(ray, si, far)
+                L += beta * L_far
 
             active_next = active & si.is_valid() & ~far & (depth + 1 < max_depth)
             bsdf = si.bsdf(ray)
