@@ -16,6 +16,7 @@ PLUGINS = {
     "radiosity_gather": "mi_twopass.integrators.radiosity_gather",
     "radiance_cache": "mi_twopass.integrators.radiance_cache",
     "rex": "mi_twopass.integrators.rex",
+    "spike_gather": "mi_twopass.integrators.spike_gather",
 }
 
 #: modules holding variant-bound classes, imported before the plugins, in this order.
