@@ -13,20 +13,13 @@ from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
+from .radiosity_gather import mis_weight
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
 
 #: largest max_depth as a UInt32 loop bound
 UNBOUNDED = 0xFFFFFFFF
 _TINY = 1e-30
-
-
-def mis_weight(pdf_a, pdf_b):
-    """Power heuristic (β = 2): w_a = p_a² / (p_a² + p_b²); 0 where it is not finite
-    (both pdfs 0, or an infinite pdf at a grazing or coincident sample), as Mitsuba's own."""
-    a2 = dr.square(pdf_a)
-    w = a2 / (a2 + dr.square(pdf_b))
-    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
 def read_bool(props, name, default):
