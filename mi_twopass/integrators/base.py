@@ -33,6 +33,9 @@ STAT_KEYS = (
 
 COMPONENTS = ("all", "direct", "indirect")
 
+#: ``max_depth = -1`` as a UInt32 loop bound (unbounded paths)
+UNBOUNDED = 0xFFFFFFFF
+
 
 def read_choice(props, name, default, choices):
     """Read a string property and check it is one of ``choices``."""
@@ -91,6 +94,21 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         self._counters = {}
         self.stats = {k: 0 for k in STAT_KEYS}
         self._read_props(props)
+
+    @property
+    def depth_bound(self) -> int:
+        """``max_depth`` as a loop bound: UNBOUNDED for -1."""
+        return UNBOUNDED if self.max_depth < 0 else self.max_depth
+
+    @property
+    def want_direct(self) -> bool:
+        """Emission and direct light at the first non-delta vertex are rendered."""
+        return self.component in ("all", "direct")
+
+    @property
+    def want_indirect(self) -> bool:
+        """Everything after the first non-delta vertex's direct light is rendered."""
+        return self.component in ("all", "indirect")
 
     # -- to override ------------------------------------------------------------------------
     def _read_props(self, props):

@@ -20,8 +20,6 @@ DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 #: fewest particles the prepass shoots, however few patches (per-patch noise ~ 1/sqrt(n/N))
 MIN_PARTICLES = 1 << 16
 
-#: largest max_depth as a UInt32 loop bound
-UNBOUNDED = 0xFFFFFFFF
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -205,9 +203,9 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
         """The GSII estimator of the class docstring, one path per lane."""
         sol = self.structure
         r_thresh = mi.Float(self.r_thresh(scene))
-        max_depth = UNBOUNDED if self.max_depth < 0 else self.max_depth
-        want_direct = self.component in ("all", "direct")
-        want_indirect = self.component in ("all", "indirect")
+        max_depth = self.depth_bound
+        want_direct = self.want_direct
+        want_indirect = self.want_indirect
         ctx = mi.BSDFContext()
 
         ray = mi.Ray3f(ray)

@@ -17,8 +17,6 @@ from .base import TwoPassIntegrator, read_choice, read_float, read_int
 DEBUG_MODES = ("none", "leaves", "edges", "buckets")
 DIRECT_MODES = ("rex", "shadow")
 
-#: largest max_depth as a UInt32 loop bound
-UNBOUNDED = 0xFFFFFFFF
 #: photons per film pixel when ``photons`` is not given
 DEFAULT_PHOTONS_PER_PIXEL = 256.0
 #: bounds of an automatic budget (the photon records of 4M photons take ~250 MB)
@@ -223,9 +221,9 @@ class RexIntegrator(TwoPassIntegrator):
         pre = self.structure
         tables, rexes = pre.tables, pre.rexes
         shadow = self.direct == "shadow"
-        max_depth = UNBOUNDED if self.max_depth < 0 else self.max_depth
-        want_direct = self.component in ("all", "direct")
-        want_indirect = self.component in ("all", "indirect")
+        max_depth = self.depth_bound
+        want_direct = self.want_direct
+        want_indirect = self.want_indirect
         ctx = mi.BSDFContext()
 
         ray = mi.Ray3f(ray)

@@ -17,8 +17,6 @@ from .radiosity_gather import mis_weight
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
 
-#: largest max_depth as a UInt32 loop bound
-UNBOUNDED = 0xFFFFFFFF
 _TINY = 1e-30
 
 
@@ -313,9 +311,9 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         pre = self.structure
         sol, src, grid = pre.solution, pre.sources, pre.grid
         r_thresh = mi.Float(self.r_thresh(scene))
-        max_depth = UNBOUNDED if self.max_depth < 0 else self.max_depth
-        want_direct = self.component in ("all", "direct")
-        want_indirect = self.component in ("all", "indirect")
+        max_depth = self.depth_bound
+        want_direct = self.want_direct
+        want_indirect = self.want_indirect
         complete, use_mis = self.complete, self.mis
         defensive = self.defensive if complete else 0.0
         # the defensive component covers every emitter where MIS can weight its hits, else only
