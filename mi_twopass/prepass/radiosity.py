@@ -158,11 +158,13 @@ def _sample_emission(scene, patches, rng, active):
 def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, accounting dict, rays)."""
     N = patches.count
-    idx = dr.arange(mi.UInt64, n) + mi.UInt64(first_index)
-    rng = mi.PCG32(size=n, initstate=mi.UInt64(_mix(seed)), initseq=idx)
+    # seed, offset and scale are opaque: as literals they would make every seed (every fresh
+    # prepass) compile the particle kernel anew
+    idx = dr.arange(mi.UInt64, n) + dr.opaque(mi.UInt64, first_index)
+    rng = mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, _mix(seed)), initseq=idx)
     active = dr.full(mi.Bool, True, n)
     o, d, flux = _sample_emission(scene, patches, rng, active)
-    flux = flux * (1.0 / n_total)
+    flux = flux * dr.opaque(mi.Float, 1.0 / n_total)
     dr.eval(o, d, flux, rng)
 
     flux_np = np.array(flux, dtype=np.float64).reshape(3, -1)

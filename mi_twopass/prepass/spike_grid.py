@@ -63,8 +63,8 @@ the list. All pairs of a round are one ``ray_test`` wavefront (chunked at ``batc
 pairs still open are compacted with numpy between rounds.
 
 **Lists** are stored CSR: ``offsets`` (one range per list), ``source`` ids sorted within each
-list, and ``g``; a dense ``cell → list`` table (``INVALID`` where a cell has none) and a sorted
-64-bit key ``list·S + source`` for the O(log nnz) membership test :meth:`SpikeGrid.contains`.
+list, and ``g``; a dense ``cell → list`` table (``INVALID`` where a cell has none). The
+membership test :meth:`SpikeGrid.contains` is a binary search inside one list's range.
 
 **Selection** (§2.6 and §4, the linear method of Shirley & Wang with the geometry term):
 :meth:`SpikeGrid.reservoir` sweeps a list once with weighted reservoir sampling (one uniform,
@@ -95,7 +95,6 @@ import mitsuba as mi
 import numpy as np
 
 INVALID = 0xFFFFFFFF
-KEY_SENTINEL = 0xFFFFFFFFFFFFFFFF
 #: source kinds
 KIND_EMITTER, KIND_PATCH = 0, 1
 #: candidate bands (§4): never in a list / in the influence region only / in every list cell
@@ -124,8 +123,9 @@ def _mix(seed: int) -> int:
 
 
 def _rng(n, seed, salt, first=0):
-    idx = dr.arange(mi.UInt64, n) + mi.UInt64(first)
-    return mi.PCG32(size=n, initstate=mi.UInt64(_mix(_mix(seed) ^ salt)), initseq=idx)
+    # opaque: literal seeds would compile the kernels that use the stream anew for every seed
+    idx = dr.arange(mi.UInt64, n) + dr.opaque(mi.UInt64, first)
+    return mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, _mix(_mix(seed) ^ salt)), initseq=idx)
 
 
 def _np3(v):
@@ -578,7 +578,7 @@ class SpikeGrid:
         """Memory of the render-time structure: dense cell table, CSR lists and keys."""
         n_cells = int(np.prod(self.dims))
         nnz = int(self.source.shape[0])
-        return int(4 * n_cells + 4 * (self.count + 1) + nnz * (4 + 4 + 8)
+        return int(4 * n_cells + 4 * (self.count + 1) + nnz * (4 + 4)
                    + self.sources.nbytes)
 
     def list_of_source(self, lid) -> dict:
@@ -637,16 +637,30 @@ class SpikeGrid:
         return dr.select(ok, start, 0), dr.select(ok, end - start, 0)
 
     def contains(self, lid, sid, active=True):
-        """``(found, g)``: is source ``sid`` in list ``lid``, and its visibility fraction
-        (binary search on the sorted key ``list·S + source``)."""
+        """``(found, g)``: is source ``sid`` in list ``lid``, and its visibility fraction.
+
+        A binary search inside the list's CSR range (sources ascend within a list), as a
+        symbolic loop: no table size enters the kernel, so a new prepass (other list lengths)
+        reuses the compiled render kernel."""
         t = self._tables
         ok = mi.Bool(active) & (lid != INVALID) & (sid != INVALID)
-        target = mi.UInt64(lid) * mi.UInt64(max(self.sources.count, 1)) + mi.UInt64(sid)
-        key = t["key"]
-        idx = dr.binary_search(0, t["n_key"] - 1,
-                               lambda i: dr.gather(mi.UInt64, key, i, ok) < target)
-        found = ok & (dr.gather(mi.UInt64, key, idx, ok) == target)
-        g = dr.select(found, dr.gather(mi.Float, t["g"], idx, found), 0.0)
+        start, count = self.list_range(lid, ok)
+        sid = mi.UInt32(sid)
+        src_table = t["source"]
+
+        def cond(lo, hi):
+            return lo < hi
+
+        def body(lo, hi):  # first index in [lo, hi) whose source is >= sid
+            mid = lo + (hi - lo) // 2
+            less = dr.gather(mi.UInt32, src_table, mid, lo < hi) < sid
+            return dr.select(less, mid + 1, lo), dr.select(less, hi, mid)
+
+        lo, _ = dr.while_loop((mi.UInt32(start), dr.select(ok, start + count, start)), cond, body,
+                              label="spike_contains")
+        found = ok & (lo < start + count)
+        found &= dr.gather(mi.UInt32, src_table, lo, found) == sid
+        g = dr.select(found, dr.gather(mi.Float, t["g"], lo, found), 0.0)
         return found, g
 
     # -- selection (§2.6, §4) ---------------------------------------------------------------
@@ -1028,15 +1042,11 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
     n_cells = int(np.prod(dims))
     cell_list = np.full(n_cells, INVALID, np.uint32)
     cell_list[list_cell] = np.arange(L, dtype=np.uint32)
-    S = max(sources.count, 1)
-    key = lists_l.astype(np.uint64) * np.uint64(S) + lists_s.astype(np.uint64)
-    key = np.concatenate([key, np.array([KEY_SENTINEL], np.uint64)])
     grid._tables = Tables(
         cell_list=mi.UInt32(cell_list),
         offsets=mi.UInt32(offsets.astype(np.uint32)),
         source=mi.UInt32(_pad(lists_s, np.uint32, INVALID)),
-        g=mi.Float(_pad(lists_g, np.float32)),
-        key=mi.UInt64(key), n_key=int(key.size))
+        g=mi.Float(_pad(lists_g, np.float32)))
     lengths = np.diff(offsets)
     grid.stats = dict(
         grid_dims=[int(v) for v in dims], cell_size=float(h), cells_with_lists=int(L),
