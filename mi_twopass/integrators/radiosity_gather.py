@@ -14,20 +14,14 @@ from ..prepass.radiosity import solve_radiosity
 from ..scene.patches import build_patches
 from ..scenefile import SceneFileError, load_scene
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
+from .pathtrace import (by_component, emission_mis, emitter_sample_mis, first_nondelta_hit,
+                        mis_weight, russian_roulette)  # noqa: F401 (mis_weight: re-exported)
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 
 #: fewest particles the prepass shoots, however few patches (per-patch noise ~ 1/sqrt(n/N))
 MIN_PARTICLES = 1 << 16
 
-
-
-def mis_weight(pdf_a, pdf_b):
-    """Power heuristic (β = 2): w_a = p_a² / (p_a² + p_b²); 0 where it is not finite
-    (both pdfs 0, or an infinite pdf at a grazing or coincident sample), as Mitsuba's own."""
-    a2 = dr.square(pdf_a)
-    w = a2 / (a2 + dr.square(pdf_b))
-    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
 class RadiosityGatherIntegrator(TwoPassIntegrator):
@@ -227,13 +221,8 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
             n_implicit += dr.select(gather_ray, 1, 0)
 
             # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
-            em_pdf = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
-            w_bsdf = dr.select(prev_bsdf_delta, 1.0, mis_weight(prev_bsdf_pdf, em_pdf))
-            Le = beta * w_bsdf * ds.emitter.eval(si, active)
-            direct_emission = n_nondelta <= 1
-            L += dr.select(direct_emission, Le if want_direct else 0.0,
-                           Le if want_indirect else 0.0)
+            Le = emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
 
             # Far gather ray: reflected radiosity of the patch it hits ends the path (§2.5).
             L_far, far = self.far_reflected(ray, si, gather_ray, r_thresh)
@@ -246,16 +235,10 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
             smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
 
             # Explicit gather from the emitters (Mitsuba's emitter sampling, MIS).
-            active_em = active_next & smooth
-            ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True, active_em)
-            active_em &= ds.pdf != 0.0
-            n_explicit += dr.select(active_em, 1, 0)
-            wo = si.to_local(ds.d)
-            bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
-            w_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
-            Ld = beta * w_em * bsdf_val * em_weight
-            L += dr.select(active_em & first_vertex, Ld if want_direct else 0.0,
-                           dr.select(active_em, Ld if want_indirect else 0.0, 0.0))
+            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
+                                          active_next & smooth)
+            n_explicit += dr.select(cast, 1, 0)
+            L += by_component(beta * Ld, first_vertex, want_direct, want_indirect)
 
             # Explicit gather from virtual luminaires (GSII reclassified bright reflectors).
             if want_indirect:
@@ -277,50 +260,28 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
             depth[si.is_valid()] += 1
 
             # Russian roulette (as Mitsuba's path), from rr_depth on.
-            q = dr.minimum(dr.max(beta) * dr.square(eta), 0.95)
-            rr_active = depth >= self.rr_depth
-            beta[rr_active] *= dr.rcp(dr.maximum(q, 1e-30))
-            survive = ~rr_active | (sampler.next_1d() < q)
+            beta, survive = russian_roulette(beta, eta, depth >= self.rr_depth, sampler.next_1d())
             active = active_next & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
 
         self.count("implicit_rays", n_implicit)
         self.count("explicit_rays", n_explicit)
         return L, mi.Bool(True), []
 
-    @dr.syntax
     def sample_debug(self, scene, sampler, ray, active):
         """Debug views at the first non-delta hit (delta surfaces followed as a path)."""
         sol = self.structure
-        ctx = mi.BSDFContext()
-        ray = mi.Ray3f(ray)
-        beta = mi.Spectrum(1.0)
-        result = mi.Spectrum(0.0)
-        depth = mi.UInt32(0)
-        active = mi.Bool(active)
-        while dr.hint(active, label="radiosity_gather_debug"):
-            si = scene.ray_intersect(ray, active)
-            bsdf = si.bsdf(ray)
-            bs, w = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
-            delta = active & si.is_valid() & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) \
-                & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            stop = active & ~delta
-            pid = sol.patches.lookup(si, stop & si.is_valid())
-            if self.debug == "radiosity":
-                value = sol.radiosity(si, stop & si.is_valid()) * (1.0 / dr.pi)
-            elif self.debug == "patches":
-                h = pid * mi.UInt32(2654435761)
-                value = mi.Spectrum(mi.Float(h & 255), mi.Float((h >> 8) & 255),
-                                    mi.Float((h >> 16) & 255)) / 255.0
-            else:  # virtual luminaires in white over a dim radiosity view
-                is_vl = dr.gather(mi.Bool, self.vl_mask, pid, stop & si.is_valid())
-                value = dr.select(is_vl, mi.Spectrum(1.0),
-                                  0.25 * sol.radiosity(si, stop & si.is_valid()) / dr.pi)
-            result[stop & si.is_valid()] = beta * value
-            ray = si.spawn_ray(si.to_world(bs.wo))
-            beta *= w
-            depth += 1
-            active = delta & (depth < 64)
-        return result, mi.Bool(True), []
+        si, _, beta, _, stop = first_nondelta_hit(scene, sampler, ray, active)
+        pid = sol.patches.lookup(si, stop)
+        if self.debug == "radiosity":
+            value = sol.radiosity(si, stop) * (1.0 / dr.pi)
+        elif self.debug == "patches":
+            h = pid * mi.UInt32(2654435761)
+            value = mi.Spectrum(mi.Float(h & 255), mi.Float((h >> 8) & 255),
+                                mi.Float((h >> 16) & 255)) / 255.0
+        else:  # virtual luminaires in white over a dim radiosity view
+            is_vl = dr.gather(mi.Bool, self.vl_mask, pid, stop)
+            value = dr.select(is_vl, mi.Spectrum(1.0), 0.25 * sol.radiosity(si, stop) / dr.pi)
+        return dr.select(stop, beta * value, 0.0), mi.Bool(True), []
 
 
 mi.register_integrator("radiosity_gather", lambda props: RadiosityGatherIntegrator(props))

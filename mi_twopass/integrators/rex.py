@@ -13,6 +13,7 @@ import mitsuba as mi
 from .. import units
 from ..prepass.rex import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
+from .pathtrace import by_component, emission_mis, emitter_sample_mis, russian_roulette
 
 DEBUG_MODES = ("none", "leaves", "edges", "buckets")
 DIRECT_MODES = ("rex", "shadow")
@@ -22,12 +23,6 @@ DEFAULT_PHOTONS_PER_PIXEL = 256.0
 #: bounds of an automatic budget (the photon records of 4M photons take ~250 MB)
 MIN_PHOTONS = 1 << 16
 MAX_AUTO_PHOTONS = 1 << 22
-
-
-def mis_weight(pdf_a, pdf_b):
-    """Power heuristic (β = 2): w_a = p_a² / (p_a² + p_b²), 0 where both pdfs vanish."""
-    a2 = dr.square(pdf_a)
-    return dr.detach(dr.select(pdf_a > 0, a2 / dr.maximum(a2 + dr.square(pdf_b), 1e-38), 0.0))
 
 
 class RexIntegrator(TwoPassIntegrator):
@@ -245,12 +240,8 @@ class RexIntegrator(TwoPassIntegrator):
             n_implicit += dr.select(active & (depth > 0), mi.UInt32(1), mi.UInt32(0))
 
             # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
-            em_pdf = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
-            w_bsdf = dr.select(prev_bsdf_delta, 1.0, mis_weight(prev_bsdf_pdf, em_pdf))
-            Le = beta * w_bsdf * ds.emitter.eval(si, active)
-            L += dr.select(n_nondelta <= 1, Le if want_direct else 0.0,
-                           Le if want_indirect else 0.0)
+            Le = emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
 
             valid = active & si.is_valid() & ~after_rex
             shape = tables.shape_index(si, valid)
@@ -273,16 +264,10 @@ class RexIntegrator(TwoPassIntegrator):
             smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
             glossy = valid & ~on_rex_surface & smooth
             can_go = depth + 1 < max_depth
-            active_em = (glossy | (at_rex & shadow)) & can_go
-            ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True, active_em)
-            active_em &= ds.pdf != 0.0
-            n_explicit += dr.select(active_em, mi.UInt32(1), mi.UInt32(0))
-            wo = si.to_local(ds.d)
-            bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
-            w_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
-            Ld = beta * w_em * bsdf_val * em_weight
-            L += dr.select(active_em & first, Ld if want_direct else 0.0,
-                           dr.select(active_em, Ld if want_indirect else 0.0, 0.0))
+            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
+                                          (glossy | (at_rex & shadow)) & can_go)
+            n_explicit += dr.select(cast, mi.UInt32(1), mi.UInt32(0))
+            L += by_component(beta * Ld, first, want_direct, want_indirect)
 
             # Continue through specular/glossy vertices; a rex vertex sends its MIS ray only.
             through = valid & ~on_rex_surface
@@ -301,10 +286,8 @@ class RexIntegrator(TwoPassIntegrator):
             depth += 1
 
             # Russian roulette on long specular/glossy chains (as Mitsuba's path).
-            q = dr.minimum(dr.max(beta) * dr.square(eta), 0.95)
-            rr_active = through & (depth >= self.rr_depth)
-            beta[rr_active] *= dr.rcp(dr.maximum(q, 1e-30))
-            survive = ~rr_active | (sampler.next_1d() < q)
+            beta, survive = russian_roulette(beta, eta, through & (depth >= self.rr_depth),
+                                             sampler.next_1d())
             active = go & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
 
         self.count("implicit_rays", n_implicit)

@@ -13,7 +13,7 @@ from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
-from .radiosity_gather import mis_weight
+from .pathtrace import by_component, first_nondelta_hit, mis_weight, russian_roulette
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
 
@@ -381,9 +381,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
                                dr.select(from_fallback, w_fallback,
                                          dr.select(listed, w_listed, w_unlisted)))
             Le = beta * w_emit * Le
-            direct_emission = n_nondelta <= 1
-            L += dr.select(direct_emission, Le if want_direct else 0.0,
-                           Le if want_indirect else 0.0)
+            L += by_component(Le, n_nondelta <= 1, want_direct, want_indirect)
 
             # -- Far gather ray: B_r/π of the patch hit ends the path, unless it is a VL of the
             #    list used (then it was sampled explicitly).
@@ -460,9 +458,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
             contrib_vl = Lr * (cos_y / dr.maximum(dist2 * P_sel * pdf_a, _TINY))
             Ld = beta * f * dr.select(is_vl, contrib_vl, contrib_em)
             Ld = dr.select(visible & dr.all(dr.isfinite(Ld)), Ld, 0.0)
-            direct_part = (is_em | use_fb) & first_vertex
-            L += dr.select(direct_part, Ld if want_direct else 0.0,
-                           Ld if want_indirect else 0.0)
+            L += by_component(Ld, (is_em | use_fb) & first_vertex, want_direct, want_indirect)
 
             # -- Implicit gather ray, sampled from the BSDF.
             bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(),
@@ -485,10 +481,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
             depth[si.is_valid()] += 1
 
             # Russian roulette (as Mitsuba's path), from rr_depth on.
-            q = dr.minimum(dr.max(beta) * dr.square(eta), 0.95)
-            rr_active = depth >= self.rr_depth
-            beta[rr_active] *= dr.rcp(dr.maximum(q, 1e-30))
-            survive = ~rr_active | (sampler.next_1d() < q)
+            beta, survive = russian_roulette(beta, eta, depth >= self.rr_depth, sampler.next_1d())
             active = active_next & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
 
         # the counters are reductions that evaluate the loop: schedule L with them, so that one
@@ -498,37 +491,19 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         self.count("explicit_rays", n_explicit)
         return L, mi.Bool(True), []
 
-    @dr.syntax
     def sample_debug(self, scene, sampler, ray, active):
         """Debug views at the first non-delta hit (delta surfaces followed as a path)."""
         pre = self.structure
         sol, grid = pre.solution, pre.grid
         longest = float(max(int(pre.grid.lengths.max()) if pre.grid.count else 0, 1))
-        ctx = mi.BSDFContext()
-        ray = mi.Ray3f(ray)
-        beta = mi.Spectrum(1.0)
-        result = mi.Spectrum(0.0)
-        depth = mi.UInt32(0)
-        active = mi.Bool(active)
-        while dr.hint(active, label="spike_gather_debug"):
-            si = scene.ray_intersect(ray, active)
-            bsdf = si.bsdf(ray)
-            bs, w = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
-            delta = active & si.is_valid() & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) \
-                & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            stop = active & ~delta & si.is_valid()
-            if self.debug == "radiosity":
-                value = sol.radiosity(si, stop) * (1.0 / dr.pi)
-            else:
-                lid = grid.list_at(si.p, stop)
-                _, count = grid.list_range(lid, stop)
-                value = dr.select(lid != INVALID, colour_ramp(mi.Float(count) / longest), 0.0)
-            result[stop] = beta * value
-            ray = si.spawn_ray(si.to_world(bs.wo))
-            beta *= w
-            depth += 1
-            active = delta & (depth < 64)
-        return result, mi.Bool(True), []
+        si, _, beta, _, stop = first_nondelta_hit(scene, sampler, ray, active)
+        if self.debug == "radiosity":
+            value = sol.radiosity(si, stop) * (1.0 / dr.pi)
+        else:
+            lid = grid.list_at(si.p, stop)
+            _, count = grid.list_range(lid, stop)
+            value = dr.select(lid != INVALID, colour_ramp(mi.Float(count) / longest), 0.0)
+        return dr.select(stop, beta * value, 0.0), mi.Bool(True), []
 
     def to_string(self):
         return (f"SpikeGatherIntegrator[grid_res={self.grid_res}, complete={self.complete}, "

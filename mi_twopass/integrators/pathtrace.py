@@ -1,0 +1,98 @@
+"""Per-vertex pieces of a path tracer shared by the integrators' gather loops.
+
+Each is the step Mitsuba's own ``path`` integrator takes at a vertex, as a plain function of
+Dr.Jit values (no Python branching on them), so that it can sit inside a ``@dr.syntax`` symbolic
+loop: the emission met by a BSDF-sampled ray, MIS-weighted against emitter sampling; one emitter
+sample with MIS; Russian roulette; and the split of a contribution into the ``direct`` and
+``indirect`` components. Veach's power heuristic (Veach 1997, §9.2.4) weights both strategies.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+
+def mis_weight(pdf_a, pdf_b):
+    """Power heuristic (β = 2): w_a = p_a² / (p_a² + p_b²); 0 where it is not finite
+    (both pdfs 0, or an infinite pdf at a grazing or coincident sample), as Mitsuba's own."""
+    a2 = dr.square(pdf_a)
+    w = a2 / (a2 + dr.square(pdf_b))
+    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
+
+
+def emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active):
+    """Radiance Le(y → x) emitted at the hit ``si`` of a BSDF-sampled ray from ``prev_si``,
+    weighted by MIS against the emitter sampling done at ``prev_si``:
+    w = p_bsdf² / (p_bsdf² + p_em²), 1 after a delta BSDF sample (no emitter strategy there)."""
+    ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+    em_pdf = scene.pdf_emitter_direction(prev_si, ds, active & ~prev_bsdf_delta)
+    w = dr.select(prev_bsdf_delta, 1.0, mis_weight(prev_bsdf_pdf, em_pdf))
+    return w * ds.emitter.eval(si, active)
+
+
+def emitter_sample_mis(scene, si, bsdf, ctx, u, active):
+    """One emitter sample at ``si`` (Mitsuba's ``sample_emitter_direction`` with visibility):
+    ``(f·Le·w_MIS/p, cast)``: the BSDF-weighted contribution (β not included) and the lanes that
+    traced a shadow ray. MIS weight p_em² / (p_em² + p_bsdf²), 1 for delta emitters."""
+    ds, em_weight = scene.sample_emitter_direction(si, u, True, active)
+    cast = active & (ds.pdf != 0.0)
+    bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), cast)
+    w = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
+    return dr.select(cast, w * bsdf_val * em_weight, 0.0), cast
+
+
+def by_component(value, is_direct, want_direct: bool, want_indirect: bool):
+    """``value`` where its component (direct where ``is_direct``, else indirect) is wanted,
+    else 0; ``want_*`` are Python booleans (the integrator's ``component``)."""
+    return dr.select(is_direct, value if want_direct else 0.0, value if want_indirect else 0.0)
+
+
+def russian_roulette(beta, eta, rr_active, u):
+    """Mitsuba's Russian roulette: survive with q = min(max(β)·η², 0.95) where ``rr_active``,
+    dividing β by q. Returns ``(beta, survive)``."""
+    q = dr.minimum(dr.max(beta) * dr.square(eta), 0.95)
+    beta = dr.select(rr_active, beta * dr.rcp(dr.maximum(q, 1e-30)), beta)
+    return beta, ~rr_active | (u < q)
+
+
+#: delta bounces followed before the first non-delta vertex
+MAX_DELTA_DEPTH = 64
+
+
+@dr.syntax
+def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
+    """Follow delta (specular) bounces from ``ray`` to the first hit on a non-delta (smooth)
+    surface, as Mitsuba's ``path`` would. Returns ``(si, ray, beta, Le, found)``: that
+    interaction and the ray that reached it, the throughput of the delta chain, the emission
+    met on the way (MIS weight 1: no other strategy reaches it) and the lanes that found one
+    within ``max_depth`` vertices. Integrators' debug views and radiance_cache's gather vertex
+    start here."""
+    ctx = mi.BSDFContext()
+    ray = mi.Ray3f(ray)
+    beta = mi.Spectrum(1.0)
+    Le = mi.Spectrum(0.0)
+    depth = mi.UInt32(0)
+    found = mi.Bool(False)
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    active = mi.Bool(active)
+    max_depth = int(max_depth)
+    while dr.hint(active, label="first_nondelta_hit"):
+        si_cur = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
+        Le += beta * si_cur.emitter(scene).eval(si_cur, active)
+        bsdf = si_cur.bsdf(ray)
+        hit = active & si_cur.is_valid()
+        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        stop = hit & smooth & (depth + 1 < max_depth)
+        si[stop] = si_cur
+        found |= stop
+        bs, w = bsdf.sample(ctx, si_cur, sampler.next_1d(), sampler.next_2d(), hit & ~smooth)
+        go_on = hit & ~smooth & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        ray[go_on] = si_cur.spawn_ray(si_cur.to_world(bs.wo))
+        beta[go_on] *= w
+        depth += 1
+        active = go_on & (depth < max_depth) & (dr.max(beta) != 0.0)
+    return si, ray, beta, Le, found
+
+
+__all__ = ["first_nondelta_hit", "mis_weight", "emission_mis", "emitter_sample_mis", "by_component",
+           "russian_roulette"]
