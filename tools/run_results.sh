@@ -9,6 +9,5 @@ run scenes_xml/cornell_box.xml     -D res=128 --integrators path,radiosity_gathe
 run scenes_xml/office.xml          -D res=128 --integrators path,radiosity_gather,radiosity_gather:r_thresh=0
 run scenes_xml/caustic.xml         -D res=64  --integrators path,rex --ref-spp 65536
 run scenes_xml/window_interior.xml -D res=64  --integrators path,radiance_cache,radiance_cache:alpha_rel=0.03
-if "$PY" -c "import mi_twopass, sys; sys.exit('spike_gather' not in mi_twopass.registered_names())"; then
-  run scenes_xml/many_lights.xml   -D res=64  --integrators path,spike_gather,radiosity_gather --ref-spp 16384 --budget 30
-fi
+run scenes_xml/many_lights.xml   -D res=64  --integrators path,spike_gather,spike_gather:visibility_max_rays=20,radiosity_gather --ref-spp 16384 --budget 30
+"$PY" tools/spike_truncation.py scenes_xml/many_lights.xml -D res=64 --spp 1024 --seeds 4 -o out/results/spike_truncation.json
