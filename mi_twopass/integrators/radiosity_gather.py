@@ -15,7 +15,7 @@ from ..scene.patches import build_patches
 from ..scenefile import SceneFileError, load_scene
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .pathtrace import (by_component, emission_mis, emitter_sample_mis, first_nondelta_hit,
-                        mis_weight, russian_roulette)  # noqa: F401 (mis_weight: re-exported)
+                        russian_roulette)
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 

@@ -21,11 +21,14 @@ of the near geometry is already in the far-field fit (shading points farther tha
 saw it), eq. 6 subtracts it twice and over-darkens corners.
 
 §7: a bounding-volume hierarchy of all triangles stores, per node, the area-weighted sums of
-radiosity and normal and the total area. A node whose bounding sphere misses the sphere of
-interest (centre P, radius alpha) is skipped; a node farther than ``open_factor`` (4) × its
-bounding radius is counted as one disk (:func:`~mi_twopass.form_factor.point_to_disk_approx`);
-otherwise its children are visited, and a leaf triangle gets the exact
-:func:`~mi_twopass.form_factor.polygon_form_factor` (finite at corners and edges).
+radiosity and normal and the total area. A node is skipped when none of its triangles can count:
+the sphere bounding its triangles' *centroids* lies farther than alpha from P (T holds
+triangles by centroid), or its bounding sphere lies wholly below P's tangent plane (every form
+factor is 0 there, cos θ_P ≤ 0). A node farther than ``open_factor`` (4) × its bounding radius is
+counted as one disk (:func:`~mi_twopass.form_factor.point_to_disk_approx`); otherwise its
+children are visited, and a leaf triangle gets the exact
+:func:`~mi_twopass.form_factor.polygon_form_factor` (finite at corners and edges). Both form
+factors sit in symbolic branches, so a packet of lanes skips the one none of its lanes needs.
 
 The BVH is stored flat in pre-order with *skip links* (the index of the next node once a subtree
 is done): a lane walks it with one counter and no stack (:meth:`NearField.correction`, a Dr.Jit
@@ -59,8 +62,9 @@ class NearField:
     numpy arrays (``M`` nodes, ``T`` triangles, leaves hold one triangle each):
     ``center``/``radius`` the bounding sphere, ``area`` Σ A, ``B`` Σ A·R / Σ A (mean radiosity,
     (M, 3)), ``normal`` Σ A·n / Σ A (|·| ≤ 1), ``skip`` the next node after the subtree,
-    ``tri`` the triangle of a leaf (−1 for inner nodes); triangles ``verts`` (T, 3, 3),
-    ``tri_normal`` (T, 3), ``tri_B`` (T, 3).
+    ``tri`` the triangle of a leaf (−1 for inner nodes), ``ccenter``/``cradius`` the sphere
+    bounding the node's triangle centroids; triangles ``verts`` (T, 3, 3), ``tri_normal`` (T, 3),
+    ``tri_B`` (T, 3).
     """
     center: np.ndarray
     radius: np.ndarray
@@ -72,6 +76,8 @@ class NearField:
     verts: np.ndarray
     tri_normal: np.ndarray
     tri_B: np.ndarray
+    ccenter: np.ndarray
+    cradius: np.ndarray
 
     @property
     def node_count(self) -> int:
@@ -81,7 +87,7 @@ class NearField:
     def nbytes(self) -> int:
         return int(sum(a.astype(np.float32).nbytes for a in (
             self.center, self.radius, self.area, self.B, self.normal, self.skip, self.tri,
-            self.verts, self.tri_normal, self.tri_B)))
+            self.verts, self.tri_normal, self.tri_B, self.ccenter, self.cradius)))
 
     def _tables(self):
         if not hasattr(self, "_dr"):
@@ -90,7 +96,9 @@ class NearField:
                 center=f(self.center), radius=f(self.radius), area=f(self.area), B=f(self.B),
                 normal=f(self.normal), skip=mi.UInt32(self.skip.astype(np.uint32)),
                 tri=mi.UInt32(np.where(self.tri < 0, 0xFFFFFFFF, self.tri).astype(np.uint32)),
-                verts=f(self.verts), tri_normal=f(self.tri_normal), tri_B=f(self.tri_B))
+                verts=f(self.verts), tri_normal=f(self.tri_normal), tri_B=f(self.tri_B),
+                ccenter=f(self.ccenter), cradius=f(self.cradius),
+                M=dr.opaque(mi.UInt32, self.node_count))
             dr.eval(self._dr)
         return self._dr
 
@@ -112,7 +120,6 @@ class NearField:
     def _traverse(self, x, n, B_D, alpha, active, open_factor, L_F):
         """The stackless skip-link walk of :meth:`correction` (one lane per point)."""
         t = self._tables()
-        M = self.node_count
         x = mi.Point3f(x)
         n = mi.Vector3f(n)
         B_D = mi.Color3f(B_D)
@@ -121,38 +128,40 @@ class NearField:
         B_C = mi.Color3f(0.0)
         node = mi.UInt32(0)
         visits = mi.UInt32(0)
-        active = mi.Bool(active) & (M > 0)
+        active = mi.Bool(active)
         while dr.hint(active, label="near_field_bvh"):
             c = dr.gather(mi.Point3f, t["center"], node, active)
             r = dr.gather(mi.Float, t["radius"], node, active)
+            cc = dr.gather(mi.Point3f, t["ccenter"], node, active)
+            cr = dr.gather(mi.Float, t["cradius"], node, active)
             skip = dr.gather(mi.UInt32, t["skip"], node, active)
             tri = dr.gather(mi.UInt32, t["tri"], node, active)
             d = dr.norm(c - x)
             visits += 1
-            miss = d > alpha + r
+            # no centroid within alpha, or the whole node below the tangent plane: F = 0
+            miss = (dr.norm(cc - x) > alpha + cr) | (dr.dot(n, c - x) < -r)
             is_leaf = tri != 0xFFFFFFFF
             as_disk = active & ~miss & ~is_leaf & (d > of * r)
             leaf = active & ~miss & is_leaf
-            # A node far enough away: one disk of its total area, mean radiosity and normal.
-            A = dr.gather(mi.Float, t["area"], node, as_disk)
-            m = dr.gather(mi.Vector3f, t["normal"], node, as_disk)
-            Bn = dr.gather(mi.Color3f, t["B"], node, as_disk)
-            F_disk = point_to_disk_approx(x, n, c, m, A)
-            B_C[as_disk] += (Bn - _far(B_D, L_F, c - x)) * F_disk
-            # A leaf: the exact form factor of its triangle, if its centroid is near and P in front.
-            a = dr.gather(mi.Point3f, t["verts"], 3 * tri, leaf)
-            b = dr.gather(mi.Point3f, t["verts"], 3 * tri + 1, leaf)
-            cc = dr.gather(mi.Point3f, t["verts"], 3 * tri + 2, leaf)
-            nt = dr.gather(mi.Vector3f, t["tri_normal"], tri, leaf)
-            centroid = (a + b + cc) * (1.0 / 3.0)
-            use = leaf & (dr.norm(centroid - x) <= alpha) & \
-                (dr.dot(nt, x - a) > FRONT_EPS * alpha)
-            F_tri = polygon_form_factor(x, n, [a, b, cc])
-            Bt = dr.gather(mi.Color3f, t["tri_B"], tri, use)
-            B_C[use] += (Bt - _far(B_D, L_F, centroid - x)) * F_tri
+            # Symbolic branches: a packet of lanes skips a form factor none of its lanes needs.
+            if as_disk:  # a node far enough away: one disk of its area, mean radiosity, normal
+                A = dr.gather(mi.Float, t["area"], node)
+                m = dr.gather(mi.Vector3f, t["normal"], node)
+                Bn = dr.gather(mi.Color3f, t["B"], node)
+                B_C += (Bn - _far(B_D, L_F, c - x)) * point_to_disk_approx(x, n, c, m, A)
+            if leaf:  # the exact form factor of its triangle, if its centroid is near, P in front
+                a = dr.gather(mi.Point3f, t["verts"], 3 * tri)
+                b = dr.gather(mi.Point3f, t["verts"], 3 * tri + 1)
+                c3 = dr.gather(mi.Point3f, t["verts"], 3 * tri + 2)
+                nt = dr.gather(mi.Vector3f, t["tri_normal"], tri)
+                centroid = (a + b + c3) * (1.0 / 3.0)
+                use = (dr.norm(centroid - x) <= alpha) & (dr.dot(nt, x - a) > FRONT_EPS * alpha)
+                Bt = dr.gather(mi.Color3f, t["tri_B"], tri, use)
+                F_tri = polygon_form_factor(x, n, [a, b, c3])
+                B_C += dr.select(use, (Bt - _far(B_D, L_F, centroid - x)) * F_tri, 0.0)
             descend = active & ~miss & ~is_leaf & ~as_disk
             node = dr.select(descend, node + 1, skip)
-            active &= node < M
+            active &= node < t["M"]
         return B_C, visits
 
 
@@ -165,8 +174,8 @@ def _far(B_D, L_F, d):
 
 def build_near_field(verts, tri_normal, tri_B) -> NearField:
     """Median-split BVH (longest centroid axis) over triangles ``verts`` (T, 3, 3) with one-sided
-    unit normals (T, 3) and radiosities ``tri_B`` (T, 3). Bookkeeping in numpy (one pass per
-    node over its triangles); zero-area triangles are dropped."""
+    unit normals (T, 3) and radiosities ``tri_B`` (T, 3). Bookkeeping in numpy, vectorised over
+    all nodes of one tree level (about log2 T passes); zero-area triangles are dropped."""
     verts = np.asarray(verts, dtype=np.float64).reshape(-1, 3, 3)
     tri_normal = np.asarray(tri_normal, dtype=np.float64).reshape(-1, 3)
     tri_B = np.asarray(tri_B, dtype=np.float64).reshape(-1, 3)
@@ -180,44 +189,66 @@ def build_near_field(verts, tri_normal, tri_B) -> NearField:
     center = np.zeros((M, 3)); radius = np.zeros(M); area = np.zeros(M)
     B = np.zeros((M, 3)); normal = np.zeros((M, 3))
     skip = np.zeros(M, dtype=np.int64); tri = np.full(M, -1, dtype=np.int64)
+    ccenter = np.zeros((M, 3)); cradius = np.zeros(M)
     if T == 0:
-        near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B)
+        near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
+                         ccenter, cradius)
         near._tables()
         return near
-    counter = [0]
-
-    def build(ids):
-        node = counter[0]
-        counter[0] += 1
-        pts = verts[ids].reshape(-1, 3)
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        center[node] = 0.5 * (lo + hi)
-        radius[node] = np.sqrt(((pts - center[node]) ** 2).sum(axis=1).max())
+    # Level by level: ``perm`` orders the triangles so that every node is a contiguous segment
+    # [start, end) of it; a node of n triangles has 2n − 1 nodes in its subtree, so in pre-order
+    # its left child is node + 1, its right child node + 2·n_left and its skip link node + 2n − 1.
+    perm = np.arange(T)
+    start, end, node = np.array([0]), np.array([T]), np.array([0])
+    while len(node):
+        n_seg = end - start
+        seg = np.repeat(np.arange(len(node)), n_seg)  # segment of each position of perm
+        ids = perm[_ranges(start, end)]
+        # node aggregates (reduceat over the contiguous segments)
+        first = n_seg.cumsum() - n_seg
+        vp = verts[ids]  # (Σn, 3, 3)
+        lo = np.minimum.reduceat(vp.min(axis=1), first, axis=0)
+        hi = np.maximum.reduceat(vp.max(axis=1), first, axis=0)
+        c_n = 0.5 * (lo + hi)
+        d2 = ((vp - c_n[seg][:, None, :]) ** 2).sum(-1).max(axis=1)
+        center[node] = c_n
+        radius[node] = np.sqrt(np.maximum.reduceat(d2, first))
+        cts = centroid[ids]
+        clo = np.minimum.reduceat(cts, first, axis=0)
+        chi = np.maximum.reduceat(cts, first, axis=0)
+        ccenter[node] = 0.5 * (clo + chi)
+        cradius[node] = np.sqrt(np.maximum.reduceat(((cts - ccenter[node][seg]) ** 2).sum(-1),
+                                                    first))
         w = tri_area[ids]
-        area[node] = w.sum()
-        B[node] = (w[:, None] * tri_B[ids]).sum(axis=0) / area[node]
-        normal[node] = (w[:, None] * tri_normal[ids]).sum(axis=0) / area[node]
-        if len(ids) == 1:
-            tri[node] = ids[0]
-        else:
-            c = centroid[ids]
-            axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
-            order = ids[np.argsort(c[:, axis], kind="stable")]
-            half = len(order) // 2
-            build(order[:half])
-            build(order[half:])
-        skip[node] = counter[0]
-
-    import sys
-    limit = sys.getrecursionlimit()
-    sys.setrecursionlimit(max(limit, 10000))
-    try:
-        build(np.arange(T))
-    finally:
-        sys.setrecursionlimit(limit)
-    near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B)
+        area[node] = np.add.reduceat(w, first)
+        B[node] = np.add.reduceat(w[:, None] * tri_B[ids], first, axis=0) / area[node][:, None]
+        normal[node] = (np.add.reduceat(w[:, None] * tri_normal[ids], first, axis=0)
+                        / area[node][:, None])
+        skip[node] = node + 2 * n_seg - 1
+        leaf = n_seg == 1
+        tri[node[leaf]] = ids[first[leaf]]
+        # split the inner nodes at the median along their longest centroid axis (stable sort)
+        axis = np.argmax(chi - clo, axis=1)
+        key = cts[np.arange(len(ids)), axis[seg]]
+        order = np.lexsort((key, seg))
+        perm[_ranges(start, end)] = ids[order]
+        inner = ~leaf
+        half = n_seg[inner] // 2
+        s_i, e_i, nd = start[inner], end[inner], node[inner]
+        start = np.concatenate([s_i, s_i + half])
+        end = np.concatenate([s_i + half, e_i])
+        node = np.concatenate([nd + 1, nd + 2 * half])
+    near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
+                     ccenter, cradius)
     near._tables()  # Dr.Jit copies now, never first inside a symbolic loop
     return near
+
+
+def _ranges(start, end):
+    """Concatenated aranges [start_i, end_i) (numpy, vectorised)."""
+    n = end - start
+    offs = np.repeat(start - np.concatenate([[0], np.cumsum(n)[:-1]]), n)
+    return np.arange(int(n.sum())) + offs
 
 
 def correction_numpy(x, n, B_D, alpha, verts, tri_normal, tri_B, L_F=None):

@@ -21,11 +21,17 @@ Steps (:func:`build_radiance_cache`):
    a few directions give a smooth, finite fit) → 9 coefficients × RGB per cluster.
 
 At render time :meth:`RadianceCache.coefficients` interpolates the clusters' SH coefficients of
-L_F with normalised Gaussian RBF weights (σ = max(cluster radius, alpha/4)), falling back to the
-nearest cluster where all weights underflow, and :meth:`RadianceCache.far_field` dots them with
-the clamped cosine: :math:`B_D = \overline{\max(N\cdot\omega,0)}\cdot\overline{L_F}` (eq. 3).
-The RBF loop visits every cluster per lane (O(K), K ≤ ``max_clusters``): a spatial index over
-the clusters is the obvious next step for large K.
+L_F with normalised Gaussian RBF weights (σ = max(cluster radius, alpha/4), weights below
+:data:`RBF_MIN_WEIGHT` dropped, i.e. a support of radius :data:`RBF_SUPPORT` σ), falling back to
+the nearest cluster where all weights underflow, and :meth:`RadianceCache.far_field` dots them
+with the clamped cosine: :math:`B_D = \overline{\max(N\cdot\omega,0)}\cdot\overline{L_F}` (eq. 3).
+A lane visits only the clusters listed in its cell of a uniform grid (:class:`ClusterGrid`, built
+in numpy: each cluster is listed in every cell its support sphere overlaps), so the weights it
+sums are exactly those of the brute-force sum over all clusters.
+
+The default ``alpha`` (:func:`default_alpha`) is a fraction of the bounding-box diagonal of the
+shading points, the part of the scene the camera sees (§6: alpha is the scale of the detail one
+cares about in the view), not of the whole scene's bounding box.
 """
 from __future__ import annotations
 
@@ -39,6 +45,12 @@ from .. import sh
 
 #: delta bounces followed when collecting shading points
 MAX_DELTA_BOUNCES = 16
+#: RBF weights exp(−|x−c|²/2σ²) below this are dropped (and the fallback is the nearest cluster)
+RBF_MIN_WEIGHT = 1e-4
+#: support radius of a cluster's RBF in units of its σ: exp(−s²/2) = RBF_MIN_WEIGHT
+RBF_SUPPORT = float(np.sqrt(2.0 * np.log(1.0 / RBF_MIN_WEIGHT)))
+#: most cells along one axis of the cluster grid
+GRID_MAX_RES = 64
 
 
 def _mix(seed: int, salt: int) -> int:
@@ -93,6 +105,19 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     return P.astype(np.float64), N.astype(np.float64), rays
 
 
+def default_alpha(points, alpha_rel: float, fallback_diagonal: float) -> float:
+    """§6: ``alpha_rel`` × the bounding-box diagonal of the camera's shading points ``points``
+    (n, 3): the extent of what the camera sees, so a big unseen ground plane or sky dome does
+    not inflate the near-field radius. ``fallback_diagonal`` (the scene's bounding-box diagonal)
+    where there are fewer than two distinct points. Scales with the scene."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    diag = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0))) if len(p) else 0.0
+    if not diag > 0.0:
+        diag = float(fallback_diagonal)
+    return float(alpha_rel) * max(diag, 1e-30)
+
+
 def cluster_points(p, alpha: float, max_clusters: int = 256, seed: int = 0):
     """Split clusters of points ``p`` (n, 3) by 2-means while a cluster's bounding radius (about
     its centroid) exceeds ``alpha`` (§4.1) → list of index arrays (one cluster per array)."""
@@ -111,16 +136,88 @@ def cluster_points(p, alpha: float, max_clusters: int = 256, seed: int = 0):
         a = q[np.argmax(d)]
         b = q[np.argmax(np.linalg.norm(q - a, axis=1))]
         centres = np.stack([a, b])
-        for _ in range(8):
-            lab = np.argmin(((q[:, None, :] - centres[None]) ** 2).sum(-1), axis=1)
-            if lab.min() == lab.max():
+        lab = None
+        for _ in range(8):  # Lloyd iterations of 2-means, until the labels stop changing
+            new = ((q - centres[1]) ** 2).sum(-1) < ((q - centres[0]) ** 2).sum(-1)
+            if lab is not None and np.array_equal(new, lab):
                 break
-            centres = np.stack([q[lab == k].mean(axis=0) for k in range(2)])
+            lab = new
+            if lab.all() or not lab.any():
+                break
+            centres = np.stack([q[~lab].mean(axis=0), q[lab].mean(axis=0)])
+        lab = lab.astype(np.int64)
         if lab.min() == lab.max():  # all points coincide: cannot split
             done.append(ids)
             continue
         todo += [ids[lab == 0], ids[lab == 1]]
     return done
+
+
+class ClusterGrid:
+    """Uniform grid over the RBF supports of the clusters (numpy build, Dr.Jit query).
+
+    Cluster k (centre ``center[k]``, support radius ``support[k]``) is listed in every cell its
+    support sphere overlaps (exact sphere–box test), in CSR form: ``cell_start`` (C + 1,) and
+    ``cell_ids``. A point's own cell then lists every cluster whose support contains the point,
+    so summing RBF weights over the cell equals the sum over all clusters (weights outside the
+    support are dropped there too). Points outside the grid are outside every support. The cell
+    size is the median support diameter, at most :data:`GRID_MAX_RES` cells per axis.
+    """
+
+    def __init__(self, center, support):
+        center = np.asarray(center, dtype=np.float64).reshape(-1, 3)
+        support = np.asarray(support, dtype=np.float64).reshape(-1)
+        K = len(center)
+        self.lo = (center - support[:, None]).min(axis=0) if K else np.zeros(3)
+        hi = (center + support[:, None]).max(axis=0) if K else np.ones(3)
+        extent = np.maximum(hi - self.lo, 1e-30)
+        h = max(2.0 * float(np.median(support)) if K else 1.0, float(extent.max()) / GRID_MAX_RES,
+                1e-30)
+        self.res = np.clip(np.ceil(extent / h), 1, GRID_MAX_RES).astype(np.int64)
+        self.cell = extent / self.res
+        lists = [[] for _ in range(int(np.prod(self.res)))]
+        for k in range(K):  # a few thousand clusters × a few cells: bookkeeping
+            a = np.clip(np.floor((center[k] - support[k] - self.lo) / self.cell), 0, self.res - 1)
+            b = np.clip(np.floor((center[k] + support[k] - self.lo) / self.cell), 0, self.res - 1)
+            ix, iy, iz = (np.arange(int(a[j]), int(b[j]) + 1) for j in range(3))
+            I, J, L = np.meshgrid(ix, iy, iz, indexing="ij")
+            idx = np.stack([I.ravel(), J.ravel(), L.ravel()], axis=1)
+            box_lo = self.lo + idx * self.cell
+            nearest = np.clip(center[k], box_lo, box_lo + self.cell)
+            touch = ((nearest - center[k]) ** 2).sum(axis=1) <= support[k] ** 2
+            for i, j, l in idx[touch]:
+                lists[(i * self.res[1] + j) * self.res[2] + l].append(k)
+        counts = np.array([len(c) for c in lists], dtype=np.int64)
+        self.cell_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.cell_ids = (np.concatenate([np.asarray(c, dtype=np.int64) for c in lists])
+                         if counts.sum() else np.zeros(0, dtype=np.int64))
+
+    @property
+    def nbytes(self) -> int:
+        return int(4 * (len(self.cell_start) + len(self.cell_ids)))
+
+    def candidates(self, x):
+        """numpy: the cluster ids listed in the cell of each point ``x`` (n, 3) (for tests)."""
+        c = self.cell_index_numpy(x)
+        return [self.cell_ids[self.cell_start[i]:self.cell_start[i + 1]] for i in c]
+
+    def cell_index_numpy(self, x):
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+        ijk = np.clip(np.floor((x - self.lo) / self.cell), 0, self.res - 1).astype(np.int64)
+        return (ijk[:, 0] * self.res[1] + ijk[:, 1]) * self.res[2] + ijk[:, 2]
+
+    def tables(self):
+        """Dr.Jit copies: ``lo``, ``inv_cell``, ``res`` (Python tuples, constant per prepass)
+        and ``start``/``ids`` (``mi.UInt32``)."""
+        return dict(start=mi.UInt32(self.cell_start.astype(np.uint32)),
+                    ids=mi.UInt32(self.cell_ids.astype(np.uint32)))
+
+    def cell_index(self, x, t):
+        """Dr.Jit: the cell of ``x`` (clamped to the grid); ``t`` the tables of :meth:`tables`
+        plus ``lo``/``inv_cell`` (``mi.Point3f``/``mi.Vector3f``) and ``res`` (``mi.Vector3i``)."""
+        q = mi.Vector3i(dr.floor((x - t["lo"]) * t["inv_cell"]))
+        q = dr.clip(q, 0, t["res"] - 1)
+        return mi.UInt32((q.x * t["res"].y + q.y) * t["res"].z + q.z)
 
 
 def _accumulate(acc, S_table, k, w, active):
@@ -149,31 +246,53 @@ class RadianceCache:
         return int(len(self.center))
 
     @property
+    def sigma(self) -> np.ndarray:
+        """RBF widths σ_k = max(cluster radius, alpha/4)."""
+        return np.maximum(self.radius, 0.25 * self.alpha)
+
+    @property
+    def grid(self) -> ClusterGrid:
+        if not hasattr(self, "_grid"):
+            self._grid = ClusterGrid(self.center, RBF_SUPPORT * self.sigma)
+        return self._grid
+
+    @property
     def nbytes(self) -> int:
-        return int(self.count * (3 + 1 + 27) * 4)
+        return int(self.count * (3 + 1 + 27) * 4 + (self.grid.nbytes if self.count else 0))
 
     def _tables(self):
-        """Dr.Jit copies of the field, built once (call outside symbolic loops: the prepass
-        does, through :func:`build_radiance_cache`)."""
+        """Dr.Jit copies of the field and its grid, built once (call outside symbolic loops: the
+        prepass does, through :func:`build_radiance_cache`). Grid constants are opaque, so a new
+        prepass does not recompile the render kernels."""
         if not hasattr(self, "_dr"):
             self._dr = dict(center=mi.Float(self.center.astype(np.float32).ravel()),
-                            sigma=mi.Float(np.maximum(self.radius, 0.25 * self.alpha)
-                                           .astype(np.float32)),
+                            sigma=mi.Float(self.sigma.astype(np.float32)),
                             S=mi.Float(self.coeffs.astype(np.float32).ravel()))
+            if self.count:
+                g = self.grid
+                self._dr.update(g.tables())
+                self._dr["lo"] = dr.opaque(mi.Point3f, [float(v) for v in g.lo])
+                self._dr["inv_cell"] = dr.opaque(mi.Vector3f, [float(1.0 / v) for v in g.cell])
+                self._dr["res"] = dr.opaque(mi.Vector3i, [int(v) for v in g.res])
+                self._dr["K"] = dr.opaque(mi.UInt32, self.count)
             dr.eval(self._dr)
         return self._dr
 
     def coefficients(self, x, active=True):
         """Interpolated L_F at points ``x``: 9 ``mi.Color3f`` SH coefficients (incident radiance),
-        normalised Gaussian RBF weights over all clusters (nearest-cluster fallback), plus the
-        constant ``ambient`` radiance in band 0."""
+        normalised Gaussian RBF weights over the clusters whose support holds ``x`` (the lane's
+        grid cell; nearest-cluster fallback), plus the constant ``ambient`` radiance in band 0."""
         amb = [float(a) / sh._C00 for a in self.ambient]  # constant L: c_00 = L / Y_00
         if self.count == 0:
             coeffs = [mi.Color3f(0.0) for _ in range(sh.SH_COUNT)]
         else:
-            acc, nearest, sum_w = self._interpolate(x, active)
+            acc, sum_w = self._interpolate(x, active)
+            fallback = mi.Bool(active) & (sum_w <= 1e-3)
+            nearest = self._nearest(x, fallback)
+            near_acc = _accumulate([mi.Color3f(0.0) for _ in range(sh.SH_COUNT)],
+                                   self._tables()["S"], nearest, mi.Float(1.0), fallback)
             inv = dr.rcp(dr.maximum(sum_w, 1e-30))
-            coeffs = [dr.select(sum_w > 1e-3, a * inv, b) for a, b in zip(acc, nearest)]
+            coeffs = [dr.select(fallback, b, a * inv) for a, b in zip(acc, near_acc)]
         coeffs[0] = coeffs[0] + mi.Color3f(*amb)
         return [dr.select(mi.Bool(active), c, 0.0) for c in coeffs]
 
@@ -188,31 +307,62 @@ class RadianceCache:
 
     @dr.syntax
     def _interpolate(self, x, active):
-        """Σ_k w_k S_k / Σ_k w_k over all clusters (Gaussian RBF), nearest cluster fallback."""
-        K = self.count
+        """(Σ_k w_k S_k, Σ_k w_k) over the clusters listed in the grid cell of ``x`` with
+        w_k = exp(−|x − c_k|²/2σ_k²) ≥ :data:`RBF_MIN_WEIGHT` (Gaussian RBF)."""
         t = self._tables()
         x = mi.Point3f(x)
         active = mi.Bool(active)
+        cell = self.grid.cell_index(x, t)
+        j = dr.gather(mi.UInt32, t["start"], cell, active)
+        end = dr.gather(mi.UInt32, t["start"], cell + 1, active)
         sum_w = mi.Float(0.0)
         acc = [mi.Color3f(0.0) for _ in range(sh.SH_COUNT)]
+        while dr.hint(active & (j < end), label="radiance_cache_rbf"):
+            k = dr.gather(mi.UInt32, t["ids"], j)
+            c = dr.gather(mi.Point3f, t["center"], k)
+            s = dr.gather(mi.Float, t["sigma"], k)
+            w = dr.exp(-0.5 * dr.squared_norm(x - c) / dr.square(s))
+            use = w >= RBF_MIN_WEIGHT
+            acc = _accumulate(acc, t["S"], k, dr.select(use, w, 0.0), use)
+            sum_w += dr.select(use, w, 0.0)
+            j += 1
+        return acc, sum_w
+
+    @dr.syntax
+    def _nearest(self, x, active):
+        """The cluster with the smallest |x − c_k|/σ_k, by a loop over all clusters; only lanes
+        in ``active`` (those outside every support) run it."""
+        t = self._tables()
+        x = mi.Point3f(x)
+        active = mi.Bool(active)
         best_d = mi.Float(3e38)
         best = mi.UInt32(0)
         k = mi.UInt32(0)
-        while dr.hint(active & (k < K), label="radiance_cache_rbf"):
+        while dr.hint(active & (k < t["K"]), label="radiance_cache_nearest"):
             c = dr.gather(mi.Point3f, t["center"], k)
             s = dr.gather(mi.Float, t["sigma"], k)
             rel = dr.squared_norm(x - c) / dr.square(s)
-            w = dr.exp(-0.5 * rel)
             closer = rel < best_d
             best_d = dr.select(closer, rel, best_d)
             best = dr.select(closer, k, best)
-            use = active & (w > 1e-4)
-            acc = _accumulate(acc, t["S"], k, dr.select(use, w, 0.0), use)
-            sum_w += dr.select(use, w, 0.0)
             k += 1
-        nearest = _accumulate([mi.Color3f(0.0) for _ in range(sh.SH_COUNT)], t["S"], best,
-                              mi.Float(1.0), active)
-        return acc, nearest, sum_w
+        return best
+
+    def coefficients_numpy(self, x):
+        """Brute-force reference of :meth:`coefficients` (every cluster, float64) for tests:
+        ``x`` (n, 3) → (n, 9, 3)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros((len(x), sh.SH_COUNT, 3))
+        if self.count:
+            rel = ((x[:, None] - self.center[None]) ** 2).sum(-1) / self.sigma[None] ** 2
+            w = np.exp(-0.5 * rel)
+            w = np.where(w >= RBF_MIN_WEIGHT, w, 0.0)
+            sw = w.sum(1)
+            interp = np.einsum("nk,kjc->njc", w, self.coeffs) / np.maximum(sw, 1e-30)[:, None, None]
+            nearest = self.coeffs[np.argmin(rel, axis=1)]
+            out = np.where((sw > 1e-3)[:, None, None], interp, nearest)
+        out[:, 0] += np.asarray(self.ambient) / sh._C00
+        return out
 
     @dr.syntax
     def near_centre(self, x, radius, active=True):
@@ -273,14 +423,19 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
 
 def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
                          max_clusters=256, rays_per_cluster=128, seed=0, ambient=0.0,
-                         fake_gi=False):
+                         fake_gi=False, shading_points=None):
     """Steps 1–4 of the module docstring → :class:`RadianceCache`. ``fake_gi``: no shading
-    points and no gather, only the constant ``ambient`` radiance (§8.1)."""
+    points and no gather, only the constant ``ambient`` radiance (§8.1). ``shading_points``:
+    the ``(p, n, rays)`` of :func:`collect_shading_points` when the caller already has them
+    (the integrator does: its default alpha depends on them)."""
     amb = np.broadcast_to(np.asarray(ambient, dtype=np.float64), (3,)).copy()
     if fake_gi or solution is None:
         return RadianceCache(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 9, 3)), float(alpha),
-                             amb, np.zeros((0, 3)), 0)
-    p, n, shading_rays = collect_shading_points(scene, sensor, max_points, seed)
+                             amb, np.zeros((0, 3)), 0,
+                             int(shading_points[2]) if shading_points is not None else 0)
+    if shading_points is None:
+        shading_points = collect_shading_points(scene, sensor, max_points, seed)
+    p, n, shading_rays = shading_points
     clusters = cluster_points(p, alpha, max_clusters, seed)
     coeffs, rays = gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster, seed)
     center = np.array([p[ids].mean(axis=0) for ids in clusters]).reshape(-1, 3)

@@ -17,7 +17,8 @@ import pytest
 
 import mi_twopass  # noqa: F401
 import mi_twopass.integrators.radiance_cache  # noqa: F401  (registers the plugin)
-from mi_twopass.prepass.radiance_cache import RadianceCache, cluster_points
+from mi_twopass.prepass.radiance_cache import (ClusterGrid, RadianceCache,
+                                               cluster_points, default_alpha)
 
 T = mi.ScalarTransform4f
 
@@ -98,24 +99,30 @@ def test_open_plane_has_no_correction():
     assert integ.stats["NFGS"] >= 1 and integ.stats["bvh_visits"] > 0
 
 
+#: alpha of the corner tests: larger than the room's patches (triangles are not split to alpha,
+#: §5, so B_C sees a wall only through patch centroids within alpha) and than the strip width
+CORNER_ALPHA = 0.35
+
+
 def test_corner_correction_moves_toward_path():
     """Floor next to a dark wall: B_C < 0 there (the wall is darker than the far field in its
     direction), ≈ 0 far from it, and the λ = 1 image is closer to ``path`` in that strip than
     the far field alone (λ = 0). Same seed for both, so only the cache term differs."""
     scene = corner_room()
+    A = {"alpha": CORNER_ALPHA}
     p = first_hits(scene)
     floor = np.abs(p[..., 1] + 1.0) < 1e-3
     strip = floor & (p[..., 0] > 0.85)
     away = floor & (p[..., 0] < 0.3)
     assert strip.sum() >= 10 and away.sum() >= 50
 
-    B_C, _ = render(scene, spp=4, debug="B_C")
+    B_C, _ = render(scene, spp=4, debug="B_C", **A)
     assert B_C[strip].mean() < -0.005
     assert B_C[strip].mean() < 10 * abs(B_C[away].mean())
 
     ref = np.asarray(mi.render(scene, integrator=mi.load_dict({"type": "path"}), spp=2048))
-    rc1, _ = render(scene, spp=32)
-    rc0, _ = render(scene, spp=32, **{"lambda": 0.0})
+    rc1, _ = render(scene, spp=32, **A)
+    rc0, _ = render(scene, spp=32, **{"lambda": 0.0}, **A)
     err1 = abs(rc1[strip].mean() - ref[strip].mean())
     err0 = abs(rc0[strip].mean() - ref[strip].mean())
     assert err1 < err0
@@ -195,8 +202,9 @@ def test_fake_gi_darkens_near_geometry():
     middle = floor & (np.abs(p[..., 0]) < 0.5) & (np.abs(p[..., 2]) < 0.5)
     assert middle.sum() >= 10
     ind0, _ = render(scene, spp=2, fake_gi=True, ambient=0.2, component="indirect",
-                     **{"lambda": 0.0})
-    ind1, _ = render(scene, spp=2, fake_gi=True, ambient=0.2, component="indirect")
+                     alpha=CORNER_ALPHA, **{"lambda": 0.0})
+    ind1, _ = render(scene, spp=2, fake_gi=True, ambient=0.2, component="indirect",
+                     alpha=CORNER_ALPHA)
     np.testing.assert_allclose(ind0[middle], 0.7 * 0.2, rtol=1e-4)
     assert ind1[strip].mean() < 0.9 * ind0[strip].mean()
     assert ind1.min() >= -1e-6
@@ -215,3 +223,60 @@ def test_scene_without_emitters_is_black():
                           "sensor": camera([0, 1.5, 2.5], [0, -1, 0], 8)})
     img, _ = render(scene, spp=2)
     assert np.all(img == 0.0)
+
+
+def test_cluster_grid_lists_every_cluster_whose_support_holds_the_point():
+    """ClusterGrid against brute force: the cell of a point lists every cluster within its
+    support radius (random centres and radii, points inside and outside the grid)."""
+    rng = np.random.default_rng(3)
+    center = rng.random((200, 3)) * [4.0, 1.0, 2.0]
+    support = rng.uniform(0.05, 0.6, 200)
+    grid = ClusterGrid(center, support)
+    x = rng.uniform(-1.0, 5.0, (2000, 3))
+    inside = np.linalg.norm(x[:, None] - center[None], axis=-1) <= support[None]
+    for i, ids in enumerate(grid.candidates(x)):
+        assert set(np.nonzero(inside[i])[0]) <= set(ids.tolist())
+
+
+def test_grid_interpolation_matches_brute_force():
+    """RadianceCache.coefficients (grid walk, float32) equals the brute-force RBF sum over all
+    clusters (float64), nearest-cluster fallback included (points far from every cluster)."""
+    rng = np.random.default_rng(4)
+    K = 60
+    center = rng.random((K, 3)) * 3.0
+    cache = RadianceCache(center, rng.uniform(0.0, 0.3, K), rng.normal(size=(K, 9, 3)), 0.4,
+                          np.zeros(3), center, 1)
+    x = np.concatenate([rng.random((300, 3)) * 3.0, rng.uniform(8.0, 9.0, (20, 3))])
+    got = cache.coefficients(mi.Point3f(*(mi.Float(x[:, k].astype(np.float32)) for k in range(3))))
+    got = np.stack([np.asarray(c).reshape(3, -1).T for c in got], axis=1)
+    want = cache.coefficients_numpy(x)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
+    cand = cache.grid.candidates(x)
+    assert max(len(c) for c in cand) < K  # the grid prunes
+
+
+def test_default_alpha_is_a_fraction_of_what_the_camera_sees_and_scale_invariant():
+    """default_alpha: alpha_rel × the shading points' bounding-box diagonal, so scaling the scene
+    scales alpha; an unseen part of the scene (a big ground plane) does not change it."""
+    pts = np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0], [1.0, 1.0, 0.0]])
+    assert default_alpha(pts, 0.1, 100.0) == pytest.approx(0.5)
+    assert default_alpha(1e3 * pts, 0.1, 100.0) == pytest.approx(500.0)
+    assert default_alpha(np.zeros((1, 3)), 0.1, 7.0) == pytest.approx(0.7)  # no extent: fallback
+
+    def room(scale, ground):
+        d = {"type": "scene",
+             "floor": wall(T().scale(scale).translate([0, -1, 0]).rotate([1, 0, 0], -90)
+                           .scale(3.0), 0.7),
+             "light": light(y=1.0),
+             "sensor": camera([0, 1.5 * scale, 2.5 * scale], [0, -scale, 0], 8, fov=30)}
+        if ground:  # behind the camera, out of view, 100× the room
+            d["ground"] = wall(T().translate([0, 0, 20 * scale]).rotate([0, 1, 0], 180)
+                               .scale(100 * scale), 0.5)
+        return mi.load_dict(d)
+
+    a = {}
+    for scale, ground in ((1.0, False), (1.0, True), (10.0, False)):
+        _, integ = render(room(scale, ground), spp=1)
+        a[scale, ground] = integ.stats["alpha"]
+    assert a[1.0, True] == pytest.approx(a[1.0, False])
+    assert a[10.0, False] == pytest.approx(10.0 * a[1.0, False], rel=1e-3)
