@@ -145,6 +145,14 @@ def _pad(a, dtype, value=0):
     return a if a.size else np.full(1, value, dtype)
 
 
+def _packed4(xyz, w):
+    """(S, 3) and (S,) as one flat float32 array of (x, y, z, w) records (one record of zeros
+    when S = 0), for 4-wide gathers."""
+    rec = np.concatenate([np.asarray(xyz, np.float32).reshape(-1, 3),
+                          np.asarray(w, np.float32).reshape(-1, 1)], axis=1)
+    return (rec if rec.size else np.zeros((1, 4), np.float32)).ravel()
+
+
 def _lum(rgb):
     """Scalar proxy of an RGB quantity: the mean of its channels."""
     return np.asarray(rgb, dtype=np.float64).reshape(-1, 3).mean(axis=1)
@@ -246,10 +254,10 @@ class Sources:
         """Unoccluded contribution proxy L'_i(x) of source ``sid`` at ``p`` with receiver
         normal ``n`` (|cos| where ``two_sided``), conservative (see the module docstring)."""
         active = mi.Bool(active) & (sid != INVALID)
-        c = self.gather("center", sid, active)
-        r = self.gather("radius", sid, active)
-        intensity = self.gather("intensity", sid, active)
-        axis = self.gather("axis", sid, active)
+        sphere = dr.gather(mi.Vector4f, self._tables["sphere"], sid, active)
+        axis_i = dr.gather(mi.Vector4f, self._tables["axis_intensity"], sid, active)
+        c, r = mi.Point3f(sphere.x, sphere.y, sphere.z), sphere.w
+        axis, intensity = mi.Vector3f(axis_i.x, axis_i.y, axis_i.z), axis_i.w
         inf = self.gather("infinite", sid, active)
         is_patch = self.gather("is_patch", sid, active)
         d = c - p
@@ -485,6 +493,9 @@ def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_
         radius=mi.Float(_pad(src.radius, np.float32)),
         intensity=mi.Float(_pad(src.intensity, np.float32)),
         infinite=mi.Bool(_pad(src.infinite, bool, False)),
+        # packed per-source records for estimate(): one 4-wide (packet) gather each
+        sphere=mi.Float(_packed4(src.center, src.radius)),
+        axis_intensity=mi.Float(_packed4(src.axis, src.intensity)),
         in_delta=mi.Bool(_pad(np.isin(np.arange(S), src.delta_ids), bool, False)),
         in_emitters=mi.Bool(_pad(np.isin(np.arange(S), src.emitter_ids), bool, False)),
         is_patch=mi.Bool(_pad(src.kind == KIND_PATCH, bool, False)),
