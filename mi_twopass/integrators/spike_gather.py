@@ -166,6 +166,12 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
      * - cell_points
        - |int|
        - Visibility sample points kept per cell (camera hits, default: 8).
+     * - gather_cells
+       - |bool|
+       - Also give lists to the cells where near gather rays (shorter than ``r_thresh``) from
+         the camera's points land: the recursion gathers explicitly there, and a vertex in a
+         cell without a list falls back to choosing among all emitters (default: true; false:
+         camera-seen cells only).
      * - jitter
        - |float|
        - Boundary weighting: the second list is the cell of x jittered by up to ±jitter/2
@@ -235,6 +241,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         self.visibility_max_rays = read_int(props, "visibility_max_rays", 100, minimum=10)
         self.camera_res = read_int(props, "camera_res", 64, minimum=1)
         self.cell_points = read_int(props, "cell_points", 8, minimum=1)
+        self.gather_cells = read_bool(props, "gather_cells", True)
         self.jitter = read_float(props, "jitter", 1.0, minimum=0.0)
         self.complete = read_bool(props, "complete", True)
         self.mis = read_bool(props, "mis", True)
@@ -253,13 +260,15 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
     def settings(self):
         return (self.grid_res, self.e_high_rel, self.e_low_rel, self.e_high, self.e_low,
                 self.influence_rel, self.influence, self.visibility_max_rays, self.camera_res,
-                self.cell_points, self.max_patches, self.particles_per_patch, self.vl_threshold)
+                self.cell_points, self.max_patches, self.particles_per_patch, self.vl_threshold,
+                self.gather_cells, self.r_thresh_rel, self.r_thresh_abs)
 
-    def spike_settings(self) -> SpikeSettings:
+    def spike_settings(self, scene) -> SpikeSettings:
         return SpikeSettings(grid_res=self.grid_res, camera_res=self.camera_res,
                              cell_points=self.cell_points, influence=self.influence,
                              influence_rel=self.influence_rel,
-                             visibility_max_rays=self.visibility_max_rays)
+                             visibility_max_rays=self.visibility_max_rays,
+                             gather_reach=self.r_thresh(scene) if self.gather_cells else 0.0)
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
@@ -271,7 +280,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         t_rad = time.perf_counter() - t0
         rounds = self.visibility_max_rays // 10
         with progress_bar(total=rounds, desc="spike lists", unit="round") as bar:
-            pre = build_spike_prepass(scene, self.spike_settings(), solution=solution,
+            pre = build_spike_prepass(scene, self.spike_settings(scene), solution=solution,
                                       vl_threshold=self.vl_threshold,
                                       e_high_rel=self.e_high_rel, e_low_rel=self.e_low_rel,
                                       E_high=self.e_high, E_low=self.e_low, seed=seed,
@@ -349,6 +358,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         prev_two = mi.Bool(False)
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)
+        n_fallback = mi.UInt32(0)  # explicit gathers at vertices whose cells have no list
         active = mi.Bool(active)
 
         while dr.hint(active, label="spike_gather"):
@@ -451,6 +461,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
             cast = is_em | is_vl | use_fb
             visible = cast & ~scene.ray_test(shadow, cast)
             n_explicit += dr.select(cast, 1, 0)
+            n_fallback += dr.select(use_fb, 1, 0)
 
             wo = si.to_local(dr.select(is_vl, w_y, ds_l.d))
             f, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, visible)
@@ -491,9 +502,10 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
 
         # the counters are reductions that evaluate the loop: schedule L with them, so that one
         # kernel computes everything instead of the loop running twice
-        dr.schedule(L, n_implicit, n_explicit)
+        dr.schedule(L, n_implicit, n_explicit, n_fallback)
         self.count("implicit_rays", n_implicit)
         self.count("explicit_rays", n_explicit)
+        self.count("fallback_gathers", n_fallback)
         return L, mi.Bool(True), []
 
     def sample_debug(self, scene, sampler, ray, active):

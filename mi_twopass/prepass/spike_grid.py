@@ -39,9 +39,12 @@ explicitly).
 **Grid** (:func:`build_spike_grid`, §4). An axis-aligned grid over the scene's bounding box,
 ``grid_res`` cubic cells along its longest axis. Only cells that hold geometry the camera sees
 get a list: a low-resolution camera pass (``camera_res`` rays along the film's longer side,
-followed through delta bounces) collects first non-delta hit points; a cell holding some gets a
-list, and up to ``cell_points`` of them, offset along their normal, are the cell's *visibility
-sample points* (the paper's "random points in a grid cell").
+followed through delta bounces) collects first non-delta hit points, and with ``gather_reach``
+> 0 (the integrator passes its r_thresh) one cosine-distributed gather ray from each adds the
+points it reaches nearer than that (:func:`bounce_points`): there the integrator recurses and
+gathers explicitly again, so those cells need lists too. A cell holding some points gets a list,
+and up to ``cell_points`` of them, offset along their normal, are the cell's *visibility sample
+points* (the paper's "random points in a grid cell").
 
 **Candidates** (§4): a source with E_i ≥ E_high may spike anywhere and is a candidate in every
 list cell; E_low ≤ E_i < E_high (and every VL) only in the cells of its *influence region*,
@@ -111,7 +114,7 @@ PLANAR_COS = 0.9995
 _TINY = 1e-30
 
 # salts of the PCG32 streams
-_SALT_SOURCES, _SALT_CAMERA, _SALT_POINTS, _SALT_VIS = 0x51, 0xCA, 0x9E, 0x715
+_SALT_SOURCES, _SALT_CAMERA, _SALT_POINTS, _SALT_VIS, _SALT_BOUNCE = 0x51, 0xCA, 0x9E, 0x715, 0xB0
 
 
 def _mix(seed: int) -> int:
@@ -554,6 +557,31 @@ def camera_points(scene, sensor=None, res=64, seed=0, max_delta=8):
     return _np3(P)[keep], _np3(Nrm)[keep], rays
 
 
+def bounce_points(scene, P, Nrm, reach, seed=0):
+    """Where the image's *near* gather rays land: one cosine-distributed ray about the normal
+    from each camera point ``P``; hits on non-delta surfaces closer than ``reach`` (the
+    integrator's r_thresh, below which a gather recurses and gathers explicitly again) →
+    ``(points, normals facing the ray, rays)``. Their cells need lists too, else those
+    explicit gathers fall back to choosing among all emitters."""
+    n = int(P.shape[0])
+    if n == 0 or not reach > 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), 0
+    rng = _rng(n, seed, _SALT_BOUNCE)
+    p = _dr3(P, mi.Point3f)
+    frame = mi.Frame3f(_dr3(Nrm, mi.Vector3f))
+    d = frame.to_world(mi.warp.square_to_cosine_hemisphere(
+        mi.Point2f(rng.next_float32(), rng.next_float32())))
+    eps = 1e-4 * max(float(reach), _TINY)
+    ray = mi.Ray3f(p + frame.n * eps, d)
+    ray.maxt = dr.opaque(mi.Float, float(reach))
+    si = scene.ray_intersect(ray)
+    bsdf = si.bsdf(ray)
+    keep = si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    facing = dr.select(dr.dot(si.n, -ray.d) >= 0, 1.0, -1.0)
+    k = np.array(keep, dtype=bool)
+    return _np3(si.p)[k], _np3(si.n * facing)[k], n
+
+
 # ----------------------------------------------------------------------------------------------
 # The grid
 
@@ -808,6 +836,7 @@ class SpikeSettings:
     visibility_max_rays: int = 100
     batch_rays: int = 1 << 21
     point_offset_rel: float = 1e-4  # sample-point offset along the normal, × bbox diagonal
+    gather_reach: float = 0.0  # > 0: cells where near gather rays (shorter than this) land too
 
     def validate(self):
         if int(self.grid_res) < 1:
@@ -986,6 +1015,10 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
         P, Nrm, camera_rays = camera_points(scene, sensor, settings.camera_res, seed)
     else:
         P, Nrm, camera_rays = np.zeros((0, 3)), np.zeros((0, 3)), 0
+    n_camera = P.shape[0]
+    Pb, Nb, bounce_rays = bounce_points(scene, P, Nrm, settings.gather_reach, seed)
+    P, Nrm = np.concatenate([P, Pb]), np.concatenate([Nrm, Nb])
+    camera_rays += bounce_rays
     t_camera = time.perf_counter() - t0
 
     grid = SpikeGrid(sources=sources, bbox_min=bbox_min, cell_size=h, dims=dims,
@@ -1065,7 +1098,8 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
         spike_list_max=int(lengths.max()) if L else 0,
         spike_entries=int(lengths.sum()), candidate_pairs=int(pair_list.size),
         visibility_rays=int(counter["rays"]), camera_rays=int(camera_rays),
-        camera_points=int(P.shape[0]), influence=float(influence),
+        camera_points=int(n_camera), bounce_points=int(P.shape[0] - n_camera),
+        influence=float(influence),
         visibility_full=int(np.count_nonzero(g == 1.0)),
         visibility_excluded=int(np.count_nonzero(g == 0)),
         camera_seconds=t_camera, visibility_seconds=t_vis,
@@ -1097,5 +1131,6 @@ def build_spike_prepass(scene, settings: SpikeSettings, solution=None, vl_thresh
 
 
 __all__ = ["INVALID", "Sources", "SpikeGrid", "SpikeSettings", "SpikePrepass", "build_sources",
-           "build_spike_grid", "build_spike_prepass", "camera_points", "candidate_pairs",
+           "build_spike_grid", "build_spike_prepass", "bounce_points", "camera_points",
+           "candidate_pairs",
            "estimate_visibility", "grid_geometry", "conservative_cos"]

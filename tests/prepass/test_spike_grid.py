@@ -136,6 +136,41 @@ def test_occluded_sources_are_excluded_and_visible_ones_get_g_one(occluded_scene
     assert sealed_point in src.delta_ids.tolist()
 
 
+def test_cells_reached_by_near_gather_rays_get_lists():
+    """A camera looking straight down at a floor; a wall stands beside the view. With
+    gather_reach, the cells of the wall that the floor's gather rays reach get lists (and every
+    bounce point lies within reach); without it, only floor cells do."""
+    scene = mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 30,
+                   "to_world": T().look_at([0, 0, 3], [0, 0, 0], [0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+        "floor": floor(2.0),
+        "wall": {"type": "rectangle", "bsdf": {"type": "diffuse"},
+                 "to_world": T().translate([1.5, 0, 1]).rotate([0, 1, 0], -90)},
+        "lamp": {"type": "point", "position": [0, 0, 1.5], "intensity": rgb(1.0)},
+    })
+    src = build_sources(scene, None, seed=1)
+    base = dict(grid_res=8, camera_res=32, cell_points=8)
+    plain = build_spike_grid(scene, src, SpikeSettings(**base), seed=1)
+    reach = 1.0
+    bounce = build_spike_grid(scene, src, SpikeSettings(**base, gather_reach=reach), seed=1)
+
+    def wall_lists(grid):
+        pts = [grid.points[grid.point_offsets[i]:grid.point_offsets[i + 1]]
+               for i in range(grid.count)]
+        return sum(1 for q in pts if np.any(q[:, 2] > 0.05))
+
+    assert plain.stats["bounce_points"] == 0 and wall_lists(plain) == 0
+    assert bounce.stats["bounce_points"] > 0 and wall_lists(bounce) > 0
+    assert bounce.count > plain.count
+    from mi_twopass.prepass.spike_grid import bounce_points, camera_points
+    P, N, _ = camera_points(scene, res=32, seed=1)
+    Pb, _, rays = bounce_points(scene, P, N, reach, seed=1)
+    assert rays == P.shape[0] and Pb.shape[0] > 0
+    assert np.min(np.linalg.norm(Pb[:, None, :] - P[None, :, :], axis=2), axis=1).max() <= reach
+
+
 def test_cell_lookup_matches_numpy(occluded_scene):
     _, grid = _grid(occluded_scene)
     rng = np.random.default_rng(0)
