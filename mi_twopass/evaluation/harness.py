@@ -109,7 +109,8 @@ def time_to_error(points, target=TARGET_RELMSE):
 
 
 def summarise(curves: dict, baseline: str = "path", target=TARGET_RELMSE) -> None:
-    """Fill each curve's summary: equal-time ratio, time to target, bias floor."""
+    """Fill each curve's summary: equal-time ratio, equal-spp ratio, time to target, bias
+    floor."""
     base = curves.get(baseline)
     base_t = [p.seconds for p in base.points] if base else []
     base_e = [p.relmse for p in base.points] if base else []
@@ -128,6 +129,12 @@ def summarise(curves: dict, baseline: str = "path", target=TARGET_RELMSE) -> Non
                 ratios.append((p.seconds, e / p.relmse))
         s["equal_time_ratio"] = ratios[-1][1] if ratios else None
         s["equal_time_at"] = ratios[-1][0] if ratios else None
+        # per-sample quality, free of how fast either implementation is: baseline relMSE over
+        # this one's at the largest spp both curves reached
+        base_by_spp = {p.spp: p.relmse for p in base.points} if base else {}
+        common = [p for p in pts if p.spp in base_by_spp and p.relmse > 0]
+        s["equal_spp_ratio"] = base_by_spp[common[-1].spp] / common[-1].relmse if common else None
+        s["equal_spp_at"] = common[-1].spp if common else None
         tte = s["time_to_target"]
         s["speedup_to_target"] = (base_tte / tte) if (base_tte and tte) else None
 
@@ -168,12 +175,14 @@ def format_table(curves: dict, target=TARGET_RELMSE) -> str:
             lines.append(f"{c.label:<28} {p.spp:>6} {p.seconds:>9.3f} {p.relmse:>10.3e} {p.flip:>7.4f}")
     lines.append("")
     lines.append(f"{'integrator':<28} {'t(relMSE≤' + str(target) + ') s':>18} {'speed-up':>9} "
-                 f"{'equal-time ratio':>17} {'at s':>7} {'relMSE@max spp':>15} {'max spp':>8}")
+                 f"{'equal-time ratio':>17} {'at s':>7} {'equal-spp ratio':>16} {'at spp':>7} "
+                 f"{'relMSE@max spp':>15} {'max spp':>8}")
     for c in curves.values():
         s = c.summary
         lines.append(f"{c.label:<28} {f(s['time_to_target'], '.3f'):>18} "
                      f"{f(s['speedup_to_target'], '.2f'):>9} {f(s['equal_time_ratio'], '.2f'):>17} "
-                     f"{f(s['equal_time_at'], '.2f'):>7} {f(s['final_relmse'], '.3e'):>15} "
+                     f"{f(s['equal_time_at'], '.2f'):>7} {f(s['equal_spp_ratio'], '.2f'):>16} "
+                     f"{f(s['equal_spp_at'], 'd'):>7} {f(s['final_relmse'], '.3e'):>15} "
                      f"{f(s['final_spp'], 'd'):>8}")
     return "\n".join(lines)
 

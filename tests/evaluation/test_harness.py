@@ -28,6 +28,9 @@ def test_equal_time_ratio_and_speedup():
     assert curves["x"].summary["time_to_target"] == pytest.approx(2.0)
     assert curves["x"].summary["speedup_to_target"] == pytest.approx(4.0)
     assert curves["x"].summary["final_relmse"] == 0.005
+    # same spp (1, 2, 4): path 0.02 at 4 spp against 0.005 → 4× better per sample
+    assert curves["x"].summary["equal_spp_ratio"] == pytest.approx(4.0)
+    assert curves["x"].summary["equal_spp_at"] == 4
     table = harness.format_table(curves)
     assert "4.00" in table and "path" in table
 
