@@ -162,7 +162,10 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
      * - camera_res
        - |int|
        - Rays along the film's longer side of the camera pass that finds the cells needing a
-         list (default: 64).
+         list (default: 128). A cell the pass misses has no list and its gathers fall back to
+         all emitters: on ``many_lights.xml`` 64² the pixel variance at 128 spp (five renders)
+         was 0.025 with 64, 0.015 with 128, 0.013 with 256, for 1500 / 1981 / 2244 lists
+         (``tools/spike_noise.py spike_gather:camera_res=64 ...``).
      * - cell_points
        - |int|
        - Visibility sample points kept per cell (camera hits, default: 8).
@@ -239,7 +242,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         self.influence = read_float(props, "influence", 0.0, minimum=0.0) \
             if "influence" in props else None
         self.visibility_max_rays = read_int(props, "visibility_max_rays", 100, minimum=10)
-        self.camera_res = read_int(props, "camera_res", 64, minimum=1)
+        self.camera_res = read_int(props, "camera_res", 128, minimum=1)
         self.cell_points = read_int(props, "cell_points", 8, minimum=1)
         self.gather_cells = read_bool(props, "gather_cells", True)
         self.jitter = read_float(props, "jitter", 1.0, minimum=0.0)

@@ -829,7 +829,7 @@ class SpikeSettings:
     """Parameters of :func:`build_spike_grid` (see the module docstring)."""
 
     grid_res: int = 32
-    camera_res: int = 64
+    camera_res: int = 128
     cell_points: int = 8
     influence: float | None = None  # absolute irradiance threshold of influence regions
     influence_rel: float = 0.01  # ... else this × the median patch irradiance
