@@ -156,6 +156,12 @@ def _packed4(xyz, w):
     return (rec if rec.size else np.zeros((1, 4), np.float32)).ravel()
 
 
+def _flags(src):
+    """Packed FLAG_* bits of every source (numpy uint32)."""
+    return (np.where(src.infinite, FLAG_INFINITE, 0)
+            | np.where(src.kind == KIND_PATCH, FLAG_PATCH, 0)).astype(np.uint32)
+
+
 def _lum(rgb):
     """Scalar proxy of an RGB quantity: the mean of its channels."""
     return np.asarray(rgb, dtype=np.float64).reshape(-1, 3).mean(axis=1)
@@ -259,27 +265,40 @@ class Sources:
         active = mi.Bool(active) & (sid != INVALID)
         sphere = dr.gather(mi.Vector4f, self._tables["sphere"], sid, active)
         axis_i = dr.gather(mi.Vector4f, self._tables["axis_intensity"], sid, active)
-        c, r = mi.Point3f(sphere.x, sphere.y, sphere.z), sphere.w
-        axis, intensity = mi.Vector3f(axis_i.x, axis_i.y, axis_i.z), axis_i.w
-        inf = self.gather("infinite", sid, active)
-        is_patch = self.gather("is_patch", sid, active)
-        d = c - p
-        dist2 = dr.squared_norm(d)
-        dist = dr.sqrt(dist2)
-        has_axis = dr.squared_norm(axis) > 0
-        w = dr.select(inf, axis, d / dr.maximum(dist, _TINY))
-        sin_sub = dr.select(inf, 0.0, dr.minimum(r / dr.maximum(dist, _TINY), 1.0))
-        cos_sub = dr.safe_sqrt(1.0 - dr.square(sin_sub))
-        cx = dr.dot(n, w)
-        cx = dr.select(two_sided, dr.abs(cx), cx)
-        cx = dr.select(inf & ~has_axis, 1.0, conservative_cos(cx, sin_sub, cos_sub))
-        cy = dr.select(has_axis & ~inf, conservative_cos(dr.dot(axis, -w), sin_sub, cos_sub), 1.0)
-        falloff = dr.select(inf, 1.0, dr.rcp(dr.maximum(dr.maximum(dist2, dr.square(r)), _TINY)))
-        value = intensity * cx * cy * falloff
-        near = is_patch & (dist + r < r_thresh)  # a VL wholly nearer than r_thresh: path-traced
-        # a point light on the receiver: huge but finite (a NaN, from 0·∞, is no estimate)
-        value = dr.minimum(value, 1e20)
-        return dr.select(active & ~near & (value == value), value, 0.0)
+        flags = dr.gather(mi.UInt32, self._tables["flags"], sid, active)
+        return estimate_record(sphere, axis_i, flags, p, n, two_sided, r_thresh, active)
+
+
+#: bits of a source's packed ``flags``
+FLAG_INFINITE, FLAG_PATCH = 1, 2
+
+
+def estimate_record(sphere, axis_i, flags, p, n, two_sided, r_thresh, active=True):
+    """L'(x) of one packed source record: ``sphere`` = (centre, radius), ``axis_i`` = (axis,
+    intensity), ``flags`` (FLAG_INFINITE, FLAG_PATCH); the formula of :meth:`Sources.estimate`.
+    The spike lists store these records per entry, with the intensity multiplied by g, so that
+    a list sweep reads each entry with two 4-wide gathers and no indirection."""
+    c, r = mi.Point3f(sphere.x, sphere.y, sphere.z), sphere.w
+    axis, intensity = mi.Vector3f(axis_i.x, axis_i.y, axis_i.z), axis_i.w
+    inf = (flags & FLAG_INFINITE) != 0
+    is_patch = (flags & FLAG_PATCH) != 0
+    d = c - p
+    dist2 = dr.squared_norm(d)
+    dist = dr.sqrt(dist2)
+    has_axis = dr.squared_norm(axis) > 0
+    w = dr.select(inf, axis, d / dr.maximum(dist, _TINY))
+    sin_sub = dr.select(inf, 0.0, dr.minimum(r / dr.maximum(dist, _TINY), 1.0))
+    cos_sub = dr.safe_sqrt(1.0 - dr.square(sin_sub))
+    cx = dr.dot(n, w)
+    cx = dr.select(two_sided, dr.abs(cx), cx)
+    cx = dr.select(inf & ~has_axis, 1.0, conservative_cos(cx, sin_sub, cos_sub))
+    cy = dr.select(has_axis & ~inf, conservative_cos(dr.dot(axis, -w), sin_sub, cos_sub), 1.0)
+    falloff = dr.select(inf, 1.0, dr.rcp(dr.maximum(dr.maximum(dist2, dr.square(r)), _TINY)))
+    value = intensity * cx * cy * falloff
+    near = is_patch & (dist + r < r_thresh)  # a VL wholly nearer than r_thresh: path-traced
+    # a point light on the receiver: huge but finite (a NaN, from 0·∞, is no estimate)
+    value = dr.minimum(value, 1e20)
+    return dr.select(mi.Bool(active) & ~near & (value == value), value, 0.0)
 
 
 def _emitter_shapes(scene):
@@ -499,6 +518,7 @@ def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_
         # packed per-source records for estimate(): one 4-wide (packet) gather each
         sphere=mi.Float(_packed4(src.center, src.radius)),
         axis_intensity=mi.Float(_packed4(src.axis, src.intensity)),
+        flags=mi.UInt32(_pad(_flags(src), np.uint32)),
         in_delta=mi.Bool(_pad(np.isin(np.arange(S), src.delta_ids), bool, False)),
         in_emitters=mi.Bool(_pad(np.isin(np.arange(S), src.emitter_ids), bool, False)),
         is_patch=mi.Bool(_pad(src.kind == KIND_PATCH, bool, False)),
@@ -617,7 +637,7 @@ class SpikeGrid:
         """Memory of the render-time structure: dense cell table, CSR lists and keys."""
         n_cells = int(np.prod(self.dims))
         nnz = int(self.source.shape[0])
-        return int(4 * n_cells + 4 * (self.count + 1) + nnz * (4 + 4)
+        return int(4 * n_cells + 4 * (self.count + 1) + nnz * (4 + 4 + 32 + 4)
                    + self.sources.nbytes)
 
     def list_of_source(self, lid) -> dict:
@@ -710,8 +730,9 @@ class SpikeGrid:
         A functional ``dr.while_loop`` whose state is the reservoir alone: the tables are read
         through the closure, so an enclosing symbolic loop never sees them rewritten."""
         start, count = self.list_range(lid, active)
-        src_table, g_table = self._tables["source"], self._tables["g"]
-        estimate = self.sources.estimate
+        t = self._tables
+        src_table, sphere_table, axis_table, flag_table = (
+            t["source"], t["entry_sphere"], t["entry_axis_gI"], t["entry_flags"])
         p, n = mi.Point3f(p), mi.Vector3f(n)
         two_sided, r_thresh = mi.Bool(two_sided), mi.Float(r_thresh)
 
@@ -721,8 +742,10 @@ class SpikeGrid:
         def body(j, W, chosen, w_chosen, u, run):
             e = start + j
             sid = dr.gather(mi.UInt32, src_table, e, run)
-            w = dr.gather(mi.Float, g_table, e, run) * estimate(sid, p, n, two_sided, r_thresh,
-                                                                run)
+            w = estimate_record(dr.gather(mi.Vector4f, sphere_table, e, run),
+                                dr.gather(mi.Vector4f, axis_table, e, run),
+                                dr.gather(mi.UInt32, flag_table, e, run),
+                                p, n, two_sided, r_thresh, run)  # g_j·L'_j(x)
             W = W + w
             q = dr.select(W > 0, w / dr.maximum(W, _TINY), 0.0)
             take = run & (w > 0) & (u < q)
@@ -1090,7 +1113,12 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
         cell_list=mi.UInt32(cell_list),
         offsets=mi.UInt32(offsets.astype(np.uint32)),
         source=mi.UInt32(_pad(lists_s, np.uint32, INVALID)),
-        g=mi.Float(_pad(lists_g, np.float32)))
+        g=mi.Float(_pad(lists_g, np.float32)),
+        # per-entry source records for the list sweep (intensity × g)
+        entry_sphere=mi.Float(_packed4(sources.center[lists_s], sources.radius[lists_s])),
+        entry_axis_gI=mi.Float(_packed4(sources.axis[lists_s],
+                                        sources.intensity[lists_s] * lists_g)),
+        entry_flags=mi.UInt32(_pad(_flags(sources)[lists_s], np.uint32)))
     lengths = np.diff(offsets)
     grid.stats = dict(
         grid_dims=[int(v) for v in dims], cell_size=float(h), cells_with_lists=int(L),
