@@ -52,6 +52,12 @@ where its unoccluded irradiance I_i / d_min² reaches ``influence`` (d_min: dist
 bounding sphere to the cell's box); E_i < E_low never (it is left to implicit sampling).
 Delta and infinite sources have E_i = ∞.
 
+**Horizon cull** (:func:`can_light`): a candidate whose conservative L' is 0 at every camera
+and bounce point of the cell (behind each point's horizon, or a one-sided source facing away
+from all of them) gets no visibility rays: they would start into the receiving surface, and
+the integrator would never choose it there. On ``many_lights.xml`` this is a quarter of the
+candidate pairs and of the visibility rays (12.5 M → 9.5 M).
+
 **Visibility** (§4, the self-refining point sampling, exactly): a candidate pair (cell, source)
 gets rounds of ``VIS_ROUND`` = 10 rays from random sample points of the cell to random points
 on the source (``emitter.sample_direction``; a uniform point of a VL patch). A ray *reaches*
@@ -537,7 +543,8 @@ def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_
 
 def camera_points(scene, sensor=None, res=64, seed=0, max_delta=8):
     """First non-delta hit points of a ``res``-ray (longer film side) jittered camera pass,
-    followed through delta bounces: ``(points (n, 3), normals (n, 3) facing the ray, rays)``."""
+    followed through delta bounces: ``(points (n, 3), normals (n, 3) facing the ray, rays)``;
+    a point on a transmissive surface comes twice, once per side."""
     sensor = sensor if sensor is not None else scene.sensors()[0]
     w, h = (int(v) for v in sensor.film().crop_size())
     nx = res if w >= h else max(1, round(res * w / h))
@@ -553,6 +560,7 @@ def camera_points(scene, sensor=None, res=64, seed=0, max_delta=8):
     found = dr.full(mi.Bool, False, n)
     P = dr.zeros(mi.Point3f, n)
     Nrm = dr.zeros(mi.Vector3f, n)
+    T = dr.zeros(mi.Bool, n)  # transmissive: a receiver on both sides
     active = dr.full(mi.Bool, True, n)
     rays = 0
     for _ in range(max_delta + 1):  # bounce depth, each a wavefront over all rays
@@ -565,16 +573,22 @@ def camera_points(scene, sensor=None, res=64, seed=0, max_delta=8):
         facing = dr.select(dr.dot(si.n, -ray.d) >= 0, 1.0, -1.0)
         P[record] = si.p
         Nrm[record] = si.n * facing
+        T[record] = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Transmission)
         found |= record
         bs, _ = bsdf.sample(ctx, si, rng.next_float32(),
                             mi.Point2f(rng.next_float32(), rng.next_float32()), valid & ~smooth)
         ray = si.spawn_ray(si.to_world(bs.wo))
         active = valid & ~smooth & (bs.pdf > 0)
-        dr.eval(P, Nrm, found, ray, active)
+        dr.eval(P, Nrm, T, found, ray, active)
         if int(dr.count(active)[0]) == 0:
             break
     keep = np.array(found, dtype=bool)
-    return _np3(P)[keep], _np3(Nrm)[keep], rays
+    return _both_sides(_np3(P)[keep], _np3(Nrm)[keep], np.array(T, dtype=bool)[keep]) + (rays,)
+
+
+def _both_sides(P, N, two_sided):
+    """Points with their normals, a transmissive point once more with the normal flipped."""
+    return (np.concatenate([P, P[two_sided]]), np.concatenate([N, -N[two_sided]]))
 
 
 def bounce_points(scene, P, Nrm, reach, seed=0):
@@ -598,8 +612,10 @@ def bounce_points(scene, P, Nrm, reach, seed=0):
     bsdf = si.bsdf(ray)
     keep = si.is_valid() & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
     facing = dr.select(dr.dot(si.n, -ray.d) >= 0, 1.0, -1.0)
+    two = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Transmission)
     k = np.array(keep, dtype=bool)
-    return _np3(si.p)[k], _np3(si.n * facing)[k], n
+    return _both_sides(_np3(si.p)[k], _np3(si.n * facing)[k], np.array(two, dtype=bool)[k]) \
+        + (n,)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -982,6 +998,40 @@ def _trace_visibility(scene, sources, patches, pts, pt_off, pair_list, pair_src,
     return np.array(reached, dtype=bool), rays
 
 
+def can_light(sources: Sources, pair_list, pair_src, pts, pt_off, chunk=1 << 20):
+    """For each candidate pair (list, source): can the source light any of the list's cell
+    points ``pts[pt_off[l]:pt_off[l+1]]`` (numpy (P, 3) positions and (P, 3) normals facing the
+    viewer), i.e. is its conservative L' > 0 at one of them (:meth:`Sources.estimate`, one-sided:
+    a point of a transmissive surface is given once per side)? A source behind every point's
+    horizon, or facing away from all of them, cannot; its visibility rays would start into the
+    surface. One symbolic loop per chunk of pairs over the cell's points. → bool (n_pairs,)."""
+    P, N = pts
+    out = np.zeros(pair_list.size, bool)
+    if pair_list.size == 0 or P.shape[0] == 0:
+        return out
+    p_tab, n_tab = _dr3(P, mi.Point3f), _dr3(N, mi.Vector3f)
+    off = mi.UInt32(np.asarray(pt_off, np.uint32))
+    for a in range(0, pair_list.size, chunk):
+        lid = mi.UInt32(pair_list[a:a + chunk].astype(np.uint32))
+        sid = mi.UInt32(pair_src[a:a + chunk].astype(np.uint32))
+        start = dr.gather(mi.UInt32, off, lid)
+        end = dr.gather(mi.UInt32, off, lid + 1)
+
+        def cond(k, found):
+            return (k < end) & ~found
+
+        def body(k, found):
+            x = dr.gather(mi.Point3f, p_tab, k)
+            n = dr.gather(mi.Vector3f, n_tab, k)
+            found |= sources.estimate(sid, x, n, mi.Bool(False), mi.Float(0.0)) > 0
+            return k + 1, found
+
+        _, found = dr.while_loop((mi.UInt32(start), dr.zeros(mi.Bool, dr.width(lid))), cond,
+                                 body, label="spike_can_light")
+        out[a:a + chunk] = np.array(found, dtype=bool)
+    return out
+
+
 def estimate_visibility(trace, n_pairs, max_rays=100, chunk_pairs=None):
     """The self-refining visibility estimate of §4 for ``n_pairs`` pairs.
 
@@ -1073,6 +1123,12 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
         influence = 0.0
     box_lo, box_hi = _cell_boxes(bbox_min, h, dims, list_cell)
     pair_list, pair_src = candidate_pairs(sources, box_lo, box_hi, influence)
+    n_candidates = int(pair_list.size)
+    # candidates that cannot light any of the cell's points need no visibility rays
+    by_list = np.argsort(inverse, kind="stable")
+    all_off = np.concatenate([[0], np.cumsum(np.bincount(inverse, minlength=L))])
+    lit = can_light(sources, pair_list, pair_src, (P[by_list], Nrm[by_list]), all_off)
+    pair_list, pair_src = pair_list[lit], pair_src[lit]
     t_cand = time.perf_counter() - t0 - t_camera
 
     # self-refining visibility, one wavefront per round (chunked)
@@ -1124,7 +1180,8 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
         grid_dims=[int(v) for v in dims], cell_size=float(h), cells_with_lists=int(L),
         spike_list_mean=float(lengths.mean()) if L else 0.0,
         spike_list_max=int(lengths.max()) if L else 0,
-        spike_entries=int(lengths.sum()), candidate_pairs=int(pair_list.size),
+        spike_entries=int(lengths.sum()), candidate_pairs=int(n_candidates),
+        behind_horizon=int(n_candidates - pair_list.size),
         visibility_rays=int(counter["rays"]), camera_rays=int(camera_rays),
         camera_points=int(n_camera), bounce_points=int(P.shape[0] - n_camera),
         influence=float(influence),
@@ -1160,5 +1217,5 @@ def build_spike_prepass(scene, settings: SpikeSettings, solution=None, vl_thresh
 
 __all__ = ["INVALID", "Sources", "SpikeGrid", "SpikeSettings", "SpikePrepass", "build_sources",
            "build_spike_grid", "build_spike_prepass", "bounce_points", "camera_points",
-           "candidate_pairs",
+           "can_light", "candidate_pairs",
            "estimate_visibility", "grid_geometry", "conservative_cos"]

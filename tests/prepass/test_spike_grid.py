@@ -88,6 +88,7 @@ def test_self_refining_visibility_matches_the_rule(max_rays):
 # Lists of a scene
 # ---------------------------------------------------------------------------------------------
 BLOCKER_XY = np.array([1.2, -1.2])
+BOXED = [1.5, 1.5, 1.2]  # its shadow from "visible" falls beyond the floor
 
 
 @pytest.fixture(scope="module")
@@ -103,6 +104,9 @@ def occluded_scene():
         "blocker": {"type": "rectangle", "bsdf": {"type": "diffuse"},
                     "to_world": T().translate([*BLOCKER_XY, 0.3]).scale(0.2)},
         "lamp": {"type": "point", "position": [*BLOCKER_XY, 0.6], "intensity": rgb(2.0)},
+        # above the floor's horizon, so only the visibility rays can exclude it
+        "boxed": sphere_light(BOXED, 0.05, 50.0),
+        "shell": closed_box(BOXED, 0.15),
     })
 
 
@@ -115,23 +119,34 @@ def _grid(scene, **kw):
 def test_occluded_sources_are_excluded_and_visible_ones_get_g_one(occluded_scene):
     src, grid = _grid(occluded_scene)
     names = [n for n in src.names]
-    visible, sealed, sealed_point, lamp = (names.index(k) for k in
-                                           ("visible", "sealed", "sealed_point", "lamp"))
+    visible, sealed, sealed_point, lamp, boxed = (
+        names.index(k) for k in ("visible", "sealed", "sealed_point", "lamp", "boxed"))
     lists = [grid.list_of_source(i) for i in range(grid.count)]
     assert grid.count > 10
-    assert all(visible in lst for lst in lists)
+    pts = [grid.points[grid.point_offsets[i]:grid.point_offsets[i + 1]] for i in range(grid.count)]
+    on_floor = [i for i, q in enumerate(pts) if np.any(q[:, 2] < 0.01)]
+    assert len(on_floor) > 10 and all(visible in lists[i] for i in on_floor)
+    # cells that hold only points of the visible light's own sphere (the camera sees it): it
+    # cannot light itself (L' = 0 there), so it is not even a candidate
+    centre = np.array([-0.5, 0.3, 2.5])
+    on_light = [i for i, q in enumerate(pts) if np.all(np.linalg.norm(q - centre, axis=1) < 0.11)]
+    assert on_light and not any(visible in lists[i] for i in on_light)
+    assert grid.stats["behind_horizon"] > 0
     # the visible light is seen from every floor sample point away from the blocker's small
     # shadow: g = 1 (10/10 in the first round)
-    pts = [grid.points[grid.point_offsets[i]:grid.point_offsets[i + 1]] for i in range(grid.count)]
     far = [i for i, q in enumerate(pts) if np.all(q[:, 2] < 0.01)
            and np.all(np.linalg.norm(q[:, :2] - BLOCKER_XY, axis=1) > 0.5)]
     assert len(far) > 10 and all(lists[i][visible] == 1.0 for i in far)
-    # the sealed sources are never listed (g = 0 after 100 rays)
-    assert not any(sealed in lst or sealed_point in lst for lst in lists)
+    # the sealed sources are never listed (g = 0 after 100 rays, or behind every point's
+    # horizon), nor is the light boxed above the floor, which floor points see above their
+    # horizon: the point-sampled visibility excluded it from those cells
+    assert not any(k in lst for lst in lists for k in (sealed, sealed_point, boxed))
+    assert grid.stats["visibility_excluded"] >= len(on_floor)
     # the partly shadowed lamp: listed somewhere with 0 < g < 1 and with g = 1 elsewhere
     g_lamp = np.array([lst.get(lamp, 0.0) for lst in lists])
     assert np.any((g_lamp > 0) & (g_lamp < 1)) and np.any(g_lamp == 1)
-    assert grid.stats["visibility_excluded"] >= 2 * grid.count
+    # (under the floor: culled as behind every floor point's horizon, or g = 0 after 100 rays)
+    assert grid.stats["visibility_excluded"] + grid.stats["behind_horizon"] >= 2 * grid.count
     # the sealed point light stays reachable by the defensive mixture
     assert sealed_point in src.delta_ids.tolist()
 
