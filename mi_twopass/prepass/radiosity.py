@@ -66,7 +66,7 @@ DEFAULT_MAX_BOUNCES = 1024
 #: default particles per patch when ``n_particles`` is not given
 PARTICLES_PER_PATCH = 256
 #: bounces traced per symbolic loop before the surviving particles are compacted
-_CHUNK = 8
+_CHUNK = 64
 _FIXED_BITS = 28  # fixed-point resolution of a deposit relative to the largest particle flux
 _FIXED_CLAMP = float(2 ** 34)
 _NUDGE = 1e-4  # fraction of the way to the patch centre a bounce ray's origin moves
