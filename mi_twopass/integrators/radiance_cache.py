@@ -10,7 +10,7 @@ import numpy as np
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.near_field import build_near_field
+from ..prepass.near_field import build_near_field, buried_triangles, split_near_triangles
 from ..prepass.radiance_cache import (build_radiance_cache, collect_shading_points,
                                       default_alpha)
 from ..prepass.radiosity import solve_radiosity
@@ -66,14 +66,22 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     once, by emitter sampling. ``alpha → 0`` removes B_C; ``alpha`` larger than the scene gives
     B_D ≈ 0 and a visibility-free one-bounce gather from the radiosity solution.
 
+    The near-field triangles are the radiosity patches' triangles, split lazily (§5) by
+    longest-edge bisection until smaller than α wherever a camera shading point may lie within α
+    of them (:func:`~mi_twopass.prepass.near_field.split_near_triangles`); triangles inside a
+    closed solid (faces of overlapping boxes) are left out, since no point sees them
+    (:func:`~mi_twopass.prepass.near_field.buried_triangles`). The sum B_D + λ B_C is clamped at
+    0 (irradiance; B_C can over-correct where the visibility assumption fails).
+
     The RBF interpolation visits only the clusters listed in the lane's cell of a uniform grid
-    (those whose support holds the point); the BVH walk skips nodes with no triangle centroid
-    within α and nodes wholly below the tangent plane.
+    (those whose support touches the cell); the BVH walk skips nodes with no triangle centroid
+    within α and nodes whose box lies on or below the tangent plane, and starts from its cell's
+    list of subtrees (:class:`~mi_twopass.prepass.near_field.NodeCells`, built in the prepass for
+    the cells around the shading points), which sums the same nodes as a walk from the root.
 
     Simplifications: ρ is the BSDF's diffuse reflectance (``eval_diffuse_reflectance``) at every
-    non-delta gather vertex, glossy ones included; triangles are the radiosity patches' (not
-    split lazily to size α, §5); clusters split on size alone (not on the lazy "gather rays hit
-    inside the sphere" criterion); shading points come from the first sensor.
+    non-delta gather vertex, glossy ones included; clusters split on size alone (not on the lazy
+    "gather rays hit inside the sphere" criterion); shading points come from the first sensor.
 
     .. pluginparameters::
 
@@ -116,6 +124,13 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
      * - rays_per_cluster
        - |int|
        - Gather rays per SH sample (default: 128).
+     * - max_near_triangles
+       - |int|
+       - Budget of the lazy split (§5): splitting stops (longest edges first) when the near
+         field would hold more triangles (default: 131072; stat ``split_complete``).
+     * - near_cell_rel
+       - |float|
+       - Cell size of the walk's start lists, in units of α (default: 1).
      * - max_depth, rr_depth, seed, component
        - 
        - As every mi_twopass integrator. ``component``: "direct" = emission + direct light,
@@ -127,7 +142,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
     After a render, ``stats`` adds: ``ART`` (render seconds), ``NRT`` (rays traced for GI: the
     SH gather rays plus the radiosity particles' rays), ``NFGS`` (number of SH samples =
-    clusters), ``CS`` (cache bytes: SH field + BVH), ``bvh_visits`` (BVH nodes visited).
+    clusters), ``CS`` (cache bytes: SH field + BVH + start lists), ``bvh_visits`` (BVH nodes
+    visited), ``near_triangles`` (after the lazy split), ``split_complete``.
     FGO (time over a direct-only render) needs a second render: :func:`fgo`
     (``tools/radiance_cache_table.py`` prints the Table 1 columns).
     """
@@ -144,13 +160,15 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.max_points = read_int(props, "max_points", 4096, minimum=1)
         self.max_clusters = read_int(props, "max_clusters", 1024, minimum=1)
         self.rays_per_cluster = read_int(props, "rays_per_cluster", 128, minimum=1)
+        self.max_near_triangles = read_int(props, "max_near_triangles", 1 << 17, minimum=1)
+        self.cell_rel = read_float(props, "near_cell_rel", 1.0, minimum=0.0, strict=True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.near_far = read_choice(props, "near_far", "direction", ("direction", "mean"))
 
     def settings(self):
         return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.max_patches,
                 self.particles_per_patch, self.max_points, self.max_clusters,
-                self.rays_per_cluster)
+                self.rays_per_cluster, self.max_near_triangles, self.cell_rel)
 
     def alpha(self, scene, points=None) -> float:
         """``alpha``, else ``alpha_rel`` × the bounding-box diagonal of the camera's shading
@@ -186,9 +204,17 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                                      rays_per_cluster=self.rays_per_cluster, seed=seed,
                                      ambient=self.ambient if self.fake_gi else 0.0,
                                      fake_gi=self.fake_gi or sensor is None)
-        near = build_near_field(patches.tri_vertices, patches.tri_normal, tri_B)
+        # §5: triangles near the camera's shading points split lazily until smaller than alpha
+        verts, tri_n, tri_B, split_complete = split_near_triangles(
+            patches.tri_vertices, patches.tri_normal, tri_B,
+            np.zeros((0, 3)) if points is None else points[0], alpha,
+            max_triangles=self.max_near_triangles)
+        seen = ~buried_triangles(scene, verts, tri_n)  # inside a solid: never visible (§5)
+        near = build_near_field(verts[seen], tri_n[seen], tri_B[seen],
+                                points=None if points is None else points[0], alpha=alpha,
+                                cell_size=self.cell_rel * alpha)
         return CacheStructure(alpha=alpha, patches=patches, solution=solution, cache=cache,
-                              near=near)
+                              near=near, split_complete=split_complete)
 
     def prepass_stats(self, s):
         radiosity_rays = int(s["solution"].rays) if s["solution"] is not None else 0
@@ -199,6 +225,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 "NRT": radiosity_rays + cache.rays, "sh_gather_rays": cache.rays,
                 "NFGS": cache.count, "shading_points": int(len(cache.points)),
                 "patches": int(s["patches"].count), "bvh_nodes": near.node_count,
+                "near_triangles": int(len(near.verts)), "split_complete": s["split_complete"],
                 "CS": cs, "cache_bytes": cs + sol_bytes, "alpha": s["alpha"]}
 
     def _finish_stats(self, sensor, spp, prepass_seconds, render_seconds):
@@ -259,7 +286,9 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                                                    mi.Color3f(1.0), B_D / dr.pi), 0.0)
         elif want_indirect:
             rho = bsdf.eval_diffuse_reflectance(si, gather)
-            L += dr.select(gather, beta * rho / dr.pi * (B_D + B_C), 0.0)
+            # irradiance is never negative: where B_C over-corrects (the visibility assumption,
+            # §6) the sum is clamped at 0
+            L += dr.select(gather, beta * rho / dr.pi * dr.maximum(B_D + B_C, 0.0), 0.0)
         return L, mi.Bool(True), []
 
     def near_sample(self, p, active):

@@ -23,8 +23,8 @@ saw it), eq. 6 subtracts it twice and over-darkens corners.
 §7: a bounding-volume hierarchy of all triangles stores, per node, the area-weighted sums of
 radiosity and normal and the total area. A node is skipped when none of its triangles can count:
 the sphere bounding its triangles' *centroids* lies farther than alpha from P (T holds
-triangles by centroid), or its bounding sphere lies wholly below P's tangent plane (every form
-factor is 0 there, cos θ_P ≤ 0). A node farther than ``open_factor`` (4) × its bounding radius is
+triangles by centroid), or its bounding box lies on or below P's tangent plane (every form
+factor is 0 there, cos θ_P ≤ 0; a box test, so a child of a skipped node is skipped too). A node farther than ``open_factor`` (4) × its bounding radius is
 counted as one disk (:func:`~mi_twopass.form_factor.point_to_disk_approx`); otherwise its
 children are visited, and a leaf triangle gets the exact
 :func:`~mi_twopass.form_factor.polygon_form_factor` (finite at corners and edges). Both form
@@ -32,7 +32,14 @@ factors sit in symbolic branches, so a packet of lanes skips the one none of its
 
 The BVH is stored flat in pre-order with *skip links* (the index of the next node once a subtree
 is done): a lane walks it with one counter and no stack (:meth:`NearField.correction`, a Dr.Jit
-loop). Triangles are one-sided (patches are, see :mod:`mi_twopass.scene.patches`): a triangle
+loop), starting from the list of subtrees of its cell (:class:`NodeCells`: the top of the tree
+resolved once per cell in the prepass, only around the camera's shading points).
+
+§5 lazy splitting (:func:`split_near_triangles`): triangles that a shading point may lie within
+alpha of are bisected until their longest edge is ≤ alpha, each half keeping its patch's
+radiosity, so the centroid rule of T matches the far field's "hit within alpha" rule to within
+half a triangle. :func:`buried_triangles` finds the faces inside closed solids (overlapping
+boxes), which the visibility assumption must not count. Triangles are one-sided (patches are, see :mod:`mi_twopass.scene.patches`): a triangle
 is counted only where P lies in front of it, which also drops the shading point's own and coplanar
 triangles (P in their plane).
 
@@ -78,6 +85,8 @@ class NearField:
     tri_B: np.ndarray
     ccenter: np.ndarray
     cradius: np.ndarray
+    half: np.ndarray = None
+    cells: "NodeCells" = None
 
     @property
     def node_count(self) -> int:
@@ -85,9 +94,10 @@ class NearField:
 
     @property
     def nbytes(self) -> int:
-        return int(sum(a.astype(np.float32).nbytes for a in (
+        own = sum(a.astype(np.float32).nbytes for a in (
             self.center, self.radius, self.area, self.B, self.normal, self.skip, self.tri,
-            self.verts, self.tri_normal, self.tri_B, self.ccenter, self.cradius)))
+            self.verts, self.tri_normal, self.tri_B, self.ccenter, self.cradius, self.half))
+        return int(own + (self.cells.nbytes if self.cells is not None else 0))
 
     def _tables(self):
         if not hasattr(self, "_dr"):
@@ -97,8 +107,10 @@ class NearField:
                 normal=f(self.normal), skip=mi.UInt32(self.skip.astype(np.uint32)),
                 tri=mi.UInt32(np.where(self.tri < 0, 0xFFFFFFFF, self.tri).astype(np.uint32)),
                 verts=f(self.verts), tri_normal=f(self.tri_normal), tri_B=f(self.tri_B),
-                ccenter=f(self.ccenter), cradius=f(self.cradius),
+                ccenter=f(self.ccenter), cradius=f(self.cradius), half=f(self.half),
                 M=dr.opaque(mi.UInt32, self.node_count))
+            cells = self.cells if self.cells is not None else NodeCells.root_only()
+            self._dr.update(cells.tables())
             dr.eval(self._dr)
         return self._dr
 
@@ -109,37 +121,54 @@ class NearField:
 
         ``L_F``: optional per-lane SH coefficients of the far field (9 ``mi.Color3f``); then each
         triangle (node) subtracts :math:`\pi L_F(D_t)`, the far field in its own direction D_t
-        (eq. 5 without the constant-L_F assumption, footnote 1), instead of B_D."""
+        (eq. 5 without the constant-L_F assumption, footnote 1), instead of B_D.
+
+        Lanes start from their cell's list (:class:`NodeCells`) when the near field has one
+        built for this ``alpha`` and an open factor ≤ ``open_factor``; else from the root. Both
+        sum the same nodes."""
         if self.node_count == 0:
             return mi.Color3f(0.0), mi.UInt32(0)
         if L_F is None:
             L_F = []
-        return self._traverse(x, n, B_D, alpha, active, open_factor, list(L_F))
-
-    @dr.syntax
-    def _traverse(self, x, n, B_D, alpha, active, open_factor, L_F):
-        """The stackless skip-link walk of :meth:`correction` (one lane per point)."""
         t = self._tables()
         x = mi.Point3f(x)
+        cells = self.cells
+        if (cells is not None and float(alpha) == cells.alpha
+                and float(open_factor) >= cells.open_factor):
+            first, count = NodeCells.lookup(x, t)
+        else:
+            first, count = mi.UInt32(0), mi.UInt32(1)
+        return self._traverse(x, n, B_D, alpha, active, open_factor, list(L_F), first, count)
+
+    @dr.syntax
+    def _traverse(self, x, n, B_D, alpha, active, open_factor, L_F, first, count):
+        """The stackless skip-link walk of :meth:`correction`, one lane per point, over the
+        subtrees listed in ``cell_nodes[first : first + count]`` (entry 0 is the root)."""
+        t = self._tables()
         n = mi.Vector3f(n)
+        abs_n = dr.abs(n)
         B_D = mi.Color3f(B_D)
-        alpha = mi.Float(alpha)
+        alpha = dr.opaque(mi.Float, float(alpha))  # changes per prepass: not a literal
         of = mi.Float(float(open_factor) if np.isfinite(open_factor) else 3e38)
         B_C = mi.Color3f(0.0)
-        node = mi.UInt32(0)
         visits = mi.UInt32(0)
-        active = mi.Bool(active)
+        j = mi.UInt32(first)
+        stop = j + mi.UInt32(count)
+        active = mi.Bool(active) & (j < stop)
+        node = dr.gather(mi.UInt32, t["cell_nodes"], j, active)
+        end = dr.gather(mi.UInt32, t["skip"], node, active)
         while dr.hint(active, label="near_field_bvh"):
             c = dr.gather(mi.Point3f, t["center"], node, active)
             r = dr.gather(mi.Float, t["radius"], node, active)
+            h = dr.gather(mi.Vector3f, t["half"], node, active)
             cc = dr.gather(mi.Point3f, t["ccenter"], node, active)
             cr = dr.gather(mi.Float, t["cradius"], node, active)
             skip = dr.gather(mi.UInt32, t["skip"], node, active)
             tri = dr.gather(mi.UInt32, t["tri"], node, active)
             d = dr.norm(c - x)
             visits += 1
-            # no centroid within alpha, or the whole node below the tangent plane: F = 0
-            miss = (dr.norm(cc - x) > alpha + cr) | (dr.dot(n, c - x) < -r)
+            # no centroid within alpha, or the node's box on or below the tangent plane: F = 0
+            miss = (dr.norm(cc - x) > alpha + cr) | (dr.dot(n, c - x) + dr.dot(abs_n, h) <= 0)
             is_leaf = tri != 0xFFFFFFFF
             as_disk = active & ~miss & ~is_leaf & (d > of * r)
             leaf = active & ~miss & is_leaf
@@ -149,20 +178,170 @@ class NearField:
                 m = dr.gather(mi.Vector3f, t["normal"], node)
                 Bn = dr.gather(mi.Color3f, t["B"], node)
                 B_C += (Bn - _far(B_D, L_F, c - x)) * point_to_disk_approx(x, n, c, m, A)
-            if leaf:  # the exact form factor of its triangle, if its centroid is near, P in front
-                a = dr.gather(mi.Point3f, t["verts"], 3 * tri)
+            # a leaf counts if P is in front of its triangle (its centroid is the leaf's ccenter,
+            # already within alpha): tested before the branch, so the form factor runs only there
+            nt = dr.gather(mi.Vector3f, t["tri_normal"], tri, leaf)
+            a = dr.gather(mi.Point3f, t["verts"], 3 * tri, leaf)
+            use = leaf & (dr.dot(nt, x - a) > FRONT_EPS * alpha)
+            if use:  # the exact form factor of its triangle
                 b = dr.gather(mi.Point3f, t["verts"], 3 * tri + 1)
                 c3 = dr.gather(mi.Point3f, t["verts"], 3 * tri + 2)
-                nt = dr.gather(mi.Vector3f, t["tri_normal"], tri)
-                centroid = (a + b + c3) * (1.0 / 3.0)
-                use = (dr.norm(centroid - x) <= alpha) & (dr.dot(nt, x - a) > FRONT_EPS * alpha)
-                Bt = dr.gather(mi.Color3f, t["tri_B"], tri, use)
+                Bt = dr.gather(mi.Color3f, t["tri_B"], tri)
                 F_tri = polygon_form_factor(x, n, [a, b, c3])
-                B_C += dr.select(use, (Bt - _far(B_D, L_F, centroid - x)) * F_tri, 0.0)
+                B_C += (Bt - _far(B_D, L_F, cc - x)) * F_tri
             descend = active & ~miss & ~is_leaf & ~as_disk
-            node = dr.select(descend, node + 1, skip)
-            active &= node < t["M"]
+            nxt = dr.select(descend, node + 1, skip)
+            done = nxt >= end  # this listed subtree is summed: on to the next list entry
+            j = dr.select(done, j + 1, j)
+            active &= ~done | (j < stop)
+            nj = dr.gather(mi.UInt32, t["cell_nodes"], j, active & done)
+            node = dr.select(done, nj, nxt)
+            end = dr.select(done, dr.gather(mi.UInt32, t["skip"], nj, active & done), end)
         return B_C, visits
+
+
+#: most cells along one axis of the start-list grid (:class:`NodeCells`)
+CELLS_MAX_RES = 128
+
+
+class NodeCells:
+    """Per-cell start lists of the BVH walk, built in the prepass only where the image needs them
+    (cells holding a camera shading point, and their 26 neighbours, so that render-time points
+    between the shading points are covered).
+
+    For the box of a cell, the top of the tree is resolved once in numpy: a node whose centroid
+    sphere is beyond ``alpha`` from every point of the box is dropped (the walk would cull it for
+    every lane of the cell), a leaf whose triangle no point of the box is in front of is dropped,
+    and an inner node that every point of the box would descend into (its centroid sphere within
+    ``alpha`` and it nearer than ``open_factor`` × its radius, for all points of the box) is
+    replaced by its two children. The remaining nodes (pre-order) are the cell's list: a lane
+    walks each listed subtree with the usual rules (:meth:`NearField.correction`), so it sums the
+    same nodes as the walk from the root, in the same order. (A node that the root walk culls
+    below a lane's tangent plane has all its descendants culled the same way: the test is on the
+    node's box, and a child's box lies in its parent's.) Boxes are grown by a small margin so that
+    float32 lanes never disagree with the float64 decisions.
+
+    Lanes outside the listed cells start at the root (entry 0). Valid for the ``alpha`` it was
+    built for and every open factor ≥ ``open_factor``.
+    """
+
+    def __init__(self, lo, cell, res, first, count, nodes, alpha, open_factor):
+        self.lo, self.cell, self.res = lo, cell, res
+        self.first, self.count, self.nodes = first, count, nodes
+        self.alpha, self.open_factor = float(alpha), float(open_factor)
+
+    @property
+    def nbytes(self) -> int:
+        return int(4 * (self.first.size + self.count.size + self.nodes.size))
+
+    @property
+    def listed_cells(self) -> int:
+        return int((self.first > 0).sum())
+
+    @classmethod
+    def root_only(cls):
+        """No cells: every lane starts at the root."""
+        return cls(np.full(3, np.inf), np.ones(3), np.ones(3, dtype=np.int64),
+                   np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.int64),
+                   np.zeros(1, dtype=np.int64), np.nan, np.inf)
+
+    @classmethod
+    def build(cls, near, points, alpha, cell_size=None, open_factor=OPEN_FACTOR):
+        alpha = float(alpha)
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        if len(p) == 0 or near.node_count == 0 or not alpha > 0:
+            return cls.root_only()
+        h = float(cell_size) if cell_size else 0.5 * alpha
+        lo = p.min(axis=0) - h
+        extent = p.max(axis=0) + h - lo
+        res = np.clip(np.ceil(extent / h), 1, CELLS_MAX_RES).astype(np.int64)
+        cell = extent / res
+        ijk = np.minimum(np.floor((p - lo) / cell), res - 1).astype(np.int64)
+        occ = np.zeros(tuple(res), dtype=bool)
+        occ[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+        for ax in range(3):  # dilate by one cell along each axis: the 3×3×3 neighbourhood
+            o = occ.copy()
+            sl = [slice(None)] * 3
+            sl[ax] = slice(1, None); dst = tuple(sl)
+            sl[ax] = slice(None, -1); src = tuple(sl)
+            o[dst] |= occ[src]
+            o[src] |= occ[dst]
+            occ = o
+        cid = np.flatnonzero(occ)
+        cijk = np.stack(np.unravel_index(cid, tuple(res)), axis=1)
+        margin = 1e-5 * (float(np.abs(p).max()) + alpha) + 1e-4 * alpha
+        box_lo = lo + cijk * cell - margin
+        box_hi = lo + (cijk + 1) * cell + margin
+        of = float(open_factor)
+        tri = near.tri
+        # (cell, node) pairs, level by level from the root
+        pc, pn = np.arange(len(cid)), np.zeros(len(cid), dtype=np.int64)
+        out_c, out_n = [], []
+        while len(pc):
+            blo, bhi = box_lo[pc], box_hi[pc]
+            cc, cr = near.ccenter[pn], near.cradius[pn]
+            dmin = np.linalg.norm(np.maximum(np.maximum(blo - cc, cc - bhi), 0.0), axis=1)
+            dmax = np.linalg.norm(np.maximum(np.abs(cc - blo), np.abs(cc - bhi)), axis=1)
+            drop = dmin > alpha + cr
+            leaf = tri[pn] >= 0
+            if leaf.any():  # no point of the box in front of the triangle: the lane's use test
+                li = np.nonzero(leaf)[0]
+                t = tri[pn[li]]
+                nt, a = near.tri_normal[t], near.verts[t, 0]
+                front = (nt * np.where(nt > 0, bhi[li], blo[li]) - nt * a).sum(axis=1)
+                drop[li] |= front <= FRONT_EPS * alpha
+            c, r = near.center[pn], near.radius[pn]
+            cmax = np.linalg.norm(np.maximum(np.abs(c - blo), np.abs(c - bhi)), axis=1)
+            expand = ~drop & ~leaf & (dmax <= alpha + cr) & (cmax <= of * r)
+            keep = ~drop & ~expand
+            out_c.append(pc[keep]); out_n.append(pn[keep])
+            e = np.nonzero(expand)[0]
+            left = pn[e] + 1
+            pc = np.concatenate([pc[e], pc[e]])
+            pn = np.concatenate([left, near.skip[left]])
+        oc, on = np.concatenate(out_c), np.concatenate(out_n)
+        order = np.lexsort((on, oc))  # per cell, pre-order (= the root walk's order)
+        oc, on = oc[order], on[order]
+        counts = np.bincount(oc, minlength=len(cid))
+        starts = 1 + np.concatenate([[0], np.cumsum(counts)[:-1]])  # entry 0: the root
+        first = np.zeros(int(np.prod(res)), dtype=np.int64)
+        count = np.ones(int(np.prod(res)), dtype=np.int64)
+        first[cid], count[cid] = starts, counts
+        nodes = np.concatenate([[0], on]).astype(np.int64)
+        return cls(lo, cell, res, first, count, nodes, alpha, of)
+
+    def tables(self):
+        """Dr.Jit copies (grid constants opaque: a new prepass does not recompile)."""
+        return dict(cell_first=mi.UInt32(self.first.astype(np.uint32)),
+                    cell_count=mi.UInt32(self.count.astype(np.uint32)),
+                    cell_nodes=mi.UInt32(self.nodes.astype(np.uint32)),
+                    cell_lo=dr.opaque(mi.Point3f, [float(v) for v in self.lo]),
+                    cell_inv=dr.opaque(mi.Vector3f, [float(1.0 / v) for v in self.cell]),
+                    cell_res=dr.opaque(mi.Vector3i, [int(v) for v in self.res]))
+
+    @staticmethod
+    def lookup(x, t):
+        """Dr.Jit: the (first, count) of the start list of the cell of ``x`` (the root outside)."""
+        q = dr.floor((x - t["cell_lo"]) * t["cell_inv"])
+        res = mi.Vector3f(t["cell_res"])
+        inside = dr.all((q >= 0) & (q < res))
+        qi = mi.Vector3i(dr.clip(q, 0, res - 1))
+        cid = mi.UInt32((qi.x * t["cell_res"].y + qi.y) * t["cell_res"].z + qi.z)
+        first = dr.gather(mi.UInt32, t["cell_first"], cid, inside)
+        count = dr.gather(mi.UInt32, t["cell_count"], cid, inside)
+        return dr.select(inside, first, 0), dr.select(inside, count, 1)
+
+    def start_lists_numpy(self, x):
+        """numpy: the listed nodes of the cell of each point ``x`` (n, 3) (for tests)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+        q = np.floor((x - self.lo) / self.cell)
+        inside = np.all((q >= 0) & (q < self.res), axis=1)
+        qi = np.clip(q, 0, self.res - 1).astype(np.int64)
+        cid = (qi[:, 0] * self.res[1] + qi[:, 1]) * self.res[2] + qi[:, 2]
+        f = np.where(inside, self.first[cid], 0)
+        k = np.where(inside, self.count[cid], 1)
+        return [self.nodes[a:a + b] for a, b in zip(f, k)]
 
 
 def _far(B_D, L_F, d):
@@ -172,10 +351,14 @@ def _far(B_D, L_F, d):
     return dr.pi * sh.evaluate(L_F, dr.normalize(d))
 
 
-def build_near_field(verts, tri_normal, tri_B) -> NearField:
+def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
+                     cell_size=None) -> NearField:
     """Median-split BVH (longest centroid axis) over triangles ``verts`` (T, 3, 3) with one-sided
     unit normals (T, 3) and radiosities ``tri_B`` (T, 3). Bookkeeping in numpy, vectorised over
-    all nodes of one tree level (about log2 T passes); zero-area triangles are dropped."""
+    all nodes of one tree level (about log2 T passes); zero-area triangles are dropped.
+
+    With shading ``points`` (n, 3) and ``alpha``, also the per-cell start lists of the walk
+    (:class:`NodeCells`, cells of ``cell_size``, default ``alpha``/2)."""
     verts = np.asarray(verts, dtype=np.float64).reshape(-1, 3, 3)
     tri_normal = np.asarray(tri_normal, dtype=np.float64).reshape(-1, 3)
     tri_B = np.asarray(tri_B, dtype=np.float64).reshape(-1, 3)
@@ -189,10 +372,10 @@ def build_near_field(verts, tri_normal, tri_B) -> NearField:
     center = np.zeros((M, 3)); radius = np.zeros(M); area = np.zeros(M)
     B = np.zeros((M, 3)); normal = np.zeros((M, 3))
     skip = np.zeros(M, dtype=np.int64); tri = np.full(M, -1, dtype=np.int64)
-    ccenter = np.zeros((M, 3)); cradius = np.zeros(M)
+    ccenter = np.zeros((M, 3)); cradius = np.zeros(M); half = np.zeros((M, 3))
     if T == 0:
         near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
-                         ccenter, cradius)
+                         ccenter, cradius, half)
         near._tables()
         return near
     # Level by level: ``perm`` orders the triangles so that every node is a contiguous segment
@@ -212,6 +395,7 @@ def build_near_field(verts, tri_normal, tri_B) -> NearField:
         c_n = 0.5 * (lo + hi)
         d2 = ((vp - c_n[seg][:, None, :]) ** 2).sum(-1).max(axis=1)
         center[node] = c_n
+        half[node] = 0.5 * (hi - lo)
         radius[node] = np.sqrt(np.maximum.reduceat(d2, first))
         cts = centroid[ids]
         clo = np.minimum.reduceat(cts, first, axis=0)
@@ -233,13 +417,15 @@ def build_near_field(verts, tri_normal, tri_B) -> NearField:
         order = np.lexsort((key, seg))
         perm[_ranges(start, end)] = ids[order]
         inner = ~leaf
-        half = n_seg[inner] // 2
+        n_left = n_seg[inner] // 2
         s_i, e_i, nd = start[inner], end[inner], node[inner]
-        start = np.concatenate([s_i, s_i + half])
-        end = np.concatenate([s_i + half, e_i])
-        node = np.concatenate([nd + 1, nd + 2 * half])
+        start = np.concatenate([s_i, s_i + n_left])
+        end = np.concatenate([s_i + n_left, e_i])
+        node = np.concatenate([nd + 1, nd + 2 * n_left])
     near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
-                     ccenter, cradius)
+                     ccenter, cradius, half)
+    if points is not None:
+        near.cells = NodeCells.build(near, points, alpha, cell_size=cell_size)
     near._tables()  # Dr.Jit copies now, never first inside a symbolic loop
     return near
 
@@ -273,3 +459,155 @@ def correction_numpy(x, n, B_D, alpha, verts, tri_normal, tri_B, L_F=None):
         far = np.pi * sh.evaluate(np.asarray(L_F, dtype=np.float64)[:, None], d)
     diff = np.asarray(tri_B, dtype=np.float64)[None] - far
     return (F[..., None] * diff).sum(axis=1)
+
+
+#: most cells along one axis of the shading-point occupancy grid of :func:`split_near_triangles`
+OCCUPANCY_MAX_RES = 128
+
+
+class PointOccupancy:
+    """Which axis-aligned boxes contain a shading point (numpy): the points binned in a uniform
+    grid of cells of size ≥ ``h`` (at most :data:`OCCUPANCY_MAX_RES` per axis), with a 3-D
+    summed-area table of the counts, so one box query is 8 lookups. A query counts the points
+    in every cell the box overlaps: a superset of the points in the box, never fewer."""
+
+    def __init__(self, points, h: float):
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        self.empty = len(p) == 0
+        if self.empty:
+            return
+        self.lo = p.min(axis=0)
+        extent = np.maximum(p.max(axis=0) - self.lo, 1e-30)
+        self.res = np.clip(np.ceil(extent / max(float(h), 1e-30)), 1,
+                           OCCUPANCY_MAX_RES).astype(np.int64)
+        self.cell = extent / self.res
+        ijk = np.minimum(np.floor((p - self.lo) / self.cell), self.res - 1).astype(np.int64)
+        counts = np.zeros(tuple(self.res), dtype=np.int64)
+        np.add.at(counts, (ijk[:, 0], ijk[:, 1], ijk[:, 2]), 1)
+        sat = np.zeros(tuple(self.res + 1), dtype=np.int64)
+        sat[1:, 1:, 1:] = counts.cumsum(0).cumsum(1).cumsum(2)
+        self.sat = sat
+
+    def any_in_boxes(self, box_lo, box_hi):
+        """(m,) bool: a point lies in a cell that the box [box_lo, box_hi] (m, 3) overlaps."""
+        box_lo = np.asarray(box_lo, dtype=np.float64).reshape(-1, 3)
+        box_hi = np.asarray(box_hi, dtype=np.float64).reshape(-1, 3)
+        if self.empty:
+            return np.zeros(len(box_lo), dtype=bool)
+        a = np.clip(np.floor((box_lo - self.lo) / self.cell), 0, self.res).astype(np.int64)
+        b = np.clip(np.floor((box_hi - self.lo) / self.cell) + 1, 0, self.res).astype(np.int64)
+        b = np.maximum(a, b)
+        S = self.sat
+        n = (S[b[:, 0], b[:, 1], b[:, 2]] - S[a[:, 0], b[:, 1], b[:, 2]]
+             - S[b[:, 0], a[:, 1], b[:, 2]] - S[b[:, 0], b[:, 1], a[:, 2]]
+             + S[a[:, 0], a[:, 1], b[:, 2]] + S[a[:, 0], b[:, 1], a[:, 2]]
+             + S[b[:, 0], a[:, 1], a[:, 2]] - S[a[:, 0], a[:, 1], a[:, 2]])
+        return n > 0
+
+
+def split_near_triangles(verts, tri_normal, tri_B, points, alpha: float,
+                         max_triangles: int = 1 << 17):
+    """§5 lazy splitting: "we split the scene triangles until they are smaller than alpha. Only
+    those triangles that are near the shading points need to be split."
+
+    A triangle is split while its longest edge exceeds ``alpha`` and a shading point of
+    ``points`` (n, 3) may lie within ``alpha`` of it (a point in its bounding box grown by
+    ``alpha``, tested conservatively on a :class:`PointOccupancy` grid of cell ``alpha``). The
+    split is longest-edge bisection: (a, b, c) with longest edge ab → (a, m, c), (m, b, c),
+    m = (a + b)/2, two halves of equal area and the parent's winding; each half keeps the
+    parent's one-sided normal and radiosity (its patch's). Triangles far from every shading point
+    stay as they are (the image does not need them fine). Vectorised over all triangles of one
+    generation (about 2·log2(edge/alpha) passes).
+
+    ``max_triangles`` bounds the output (alpha far below the scene's detail would otherwise
+    create millions): when the next generation would exceed it, only the triangles with the
+    longest edges are split, and splitting stops.
+
+    → ``(verts (T', 3, 3), tri_normal (T', 3), tri_B (T', 3), complete)`` with ``complete``
+    False where the budget stopped the splitting before every near triangle reached alpha.
+    """
+    verts = np.asarray(verts, dtype=np.float64).reshape(-1, 3, 3)
+    tri_normal = np.asarray(tri_normal, dtype=np.float64).reshape(-1, 3)
+    tri_B = np.asarray(tri_B, dtype=np.float64).reshape(-1, 3)
+    alpha = float(alpha)
+    occ = PointOccupancy(points, alpha)
+    if occ.empty or not alpha > 0.0 or len(verts) == 0:
+        return verts, tri_normal, tri_B, True
+    out_v, out_n, out_B = [], [], []
+    V, N, B = verts, tri_normal, tri_B
+    total = len(V)
+    complete = True
+    while len(V):
+        edge = np.linalg.norm(V[:, [1, 2, 0]] - V, axis=2)  # edge k: v_k → v_{k+1}
+        longest = edge.max(axis=1)
+        split = longest > alpha
+        if split.any():
+            split[split] = occ.any_in_boxes(V[split].min(axis=1) - alpha,
+                                            V[split].max(axis=1) + alpha)
+        ids = np.nonzero(split)[0]
+        if total + len(ids) > max_triangles:  # budget: the longest edges first, then stop
+            room = max(0, int(max_triangles) - total)
+            ids = ids[np.argsort(-longest[ids], kind="stable")[:room]]
+            complete = False
+        keep = np.ones(len(V), dtype=bool)
+        keep[ids] = False
+        out_v.append(V[keep]); out_n.append(N[keep]); out_B.append(B[keep])
+        if len(ids) == 0:
+            break
+        k = np.argmax(edge[ids], axis=1)  # rotate so that the longest edge is v0 → v1
+        V = _bisect(V[ids[:, None], (k[:, None] + np.arange(3)[None]) % 3])
+        N, B = np.repeat(N[ids], 2, axis=0), np.repeat(B[ids], 2, axis=0)
+        total += len(ids)
+        if not complete:
+            out_v.append(V); out_n.append(N); out_B.append(B)
+            break
+    return (np.concatenate(out_v), np.concatenate(out_n), np.concatenate(out_B), complete)
+
+
+def _bisect(V):
+    """(m, 3, 3) triangles (a, b, c) → (2m, 3, 3): (a, m, c), (m, b, c) with m = (a + b)/2,
+    children of triangle i at rows 2i and 2i + 1 (vertices used as given: rotate first)."""
+    a, b, c = V[:, 0], V[:, 1], V[:, 2]
+    m = 0.5 * (a + b)
+    return np.stack([np.stack([a, m, c], axis=1), np.stack([m, b, c], axis=1)],
+                    axis=1).reshape(-1, 3, 3)
+
+
+#: directions of the buried-triangle test: the normal and three at this angle from it (degrees)
+BURIED_RAY_ANGLE = 60.0
+
+
+def buried_triangles(scene, verts, tri_normal):
+    """(T,) bool: triangles whose centroid lies inside a closed solid of ``scene`` (a face of
+    one box inside another, as where overlapping boxes model a thick wall): no point of the
+    scene sees them, which the visibility assumption of B_C (§5, "all nearby triangles are
+    visible") would break; the near field leaves them out.
+
+    Four rays leave the centroid (offset along the one-sided normal): along the normal and three
+    at :data:`BURIED_RAY_ANGLE` from it, 120° apart. The triangle is buried when all four hit the
+    back of a surface (``dot(n_hit, d) > 0``): from inside a closed solid every ray does, while
+    from open space at most the rays toward a one-sided surface seen from behind do. One batch
+    of 4·T rays."""
+    verts = np.asarray(verts, dtype=np.float64).reshape(-1, 3, 3)
+    n = np.asarray(tri_normal, dtype=np.float64).reshape(-1, 3)
+    T = len(verts)
+    if T == 0:
+        return np.zeros(0, dtype=bool)
+    c = verts.mean(axis=1)
+    tmp = np.where(np.abs(n[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    s = np.cross(n, tmp)
+    s /= np.maximum(np.linalg.norm(s, axis=1, keepdims=True), 1e-30)
+    t = np.cross(n, s)
+    th = np.radians(BURIED_RAY_ANGLE)
+    dirs = [n] + [np.cos(th) * n + np.sin(th) * (np.cos(p) * s + np.sin(p) * t)
+                  for p in (0.0, 2 * np.pi / 3, 4 * np.pi / 3)]
+    d = np.concatenate(dirs)
+    scale = max(1e-6, float(dr.norm(scene.bbox().extents())))
+    o = np.tile(c, (4, 1)) + 1e-5 * scale * np.tile(n, (4, 1))
+    f = lambda a: mi.Vector3f(*(mi.Float(np.ascontiguousarray(a[:, k], dtype=np.float32))  # noqa
+                                for k in range(3)))
+    ray = mi.Ray3f(mi.Point3f(f(o)), f(d))
+    si = scene.ray_intersect(ray)
+    back = np.asarray(si.is_valid() & (dr.dot(si.n, ray.d) > 0))
+    return back.reshape(4, T).all(axis=0)

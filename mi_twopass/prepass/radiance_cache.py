@@ -51,6 +51,9 @@ RBF_MIN_WEIGHT = 1e-4
 RBF_SUPPORT = float(np.sqrt(2.0 * np.log(1.0 / RBF_MIN_WEIGHT)))
 #: most cells along one axis of the cluster grid
 GRID_MAX_RES = 64
+#: cluster-grid cell size over the median RBF support radius: a lane's cell lists the clusters
+#: whose support touches the cell, about (1 + 0.87 × this)² × those that hold the point
+GRID_CELL_REL = 0.5
 
 
 def _mix(seed: int, salt: int) -> int:
@@ -161,7 +164,8 @@ class ClusterGrid:
     ``cell_ids``. A point's own cell then lists every cluster whose support contains the point,
     so summing RBF weights over the cell equals the sum over all clusters (weights outside the
     support are dropped there too). Points outside the grid are outside every support. The cell
-    size is the median support diameter, at most :data:`GRID_MAX_RES` cells per axis.
+    size is :data:`GRID_CELL_REL` × the median support radius, at most :data:`GRID_MAX_RES`
+    cells per axis.
     """
 
     def __init__(self, center, support):
@@ -171,26 +175,31 @@ class ClusterGrid:
         self.lo = (center - support[:, None]).min(axis=0) if K else np.zeros(3)
         hi = (center + support[:, None]).max(axis=0) if K else np.ones(3)
         extent = np.maximum(hi - self.lo, 1e-30)
-        h = max(2.0 * float(np.median(support)) if K else 1.0, float(extent.max()) / GRID_MAX_RES,
-                1e-30)
+        h = max(GRID_CELL_REL * float(np.median(support)) if K else 1.0,
+                float(extent.max()) / GRID_MAX_RES, 1e-30)
         self.res = np.clip(np.ceil(extent / h), 1, GRID_MAX_RES).astype(np.int64)
         self.cell = extent / self.res
-        lists = [[] for _ in range(int(np.prod(self.res)))]
-        for k in range(K):  # a few thousand clusters × a few cells: bookkeeping
-            a = np.clip(np.floor((center[k] - support[k] - self.lo) / self.cell), 0, self.res - 1)
-            b = np.clip(np.floor((center[k] + support[k] - self.lo) / self.cell), 0, self.res - 1)
-            ix, iy, iz = (np.arange(int(a[j]), int(b[j]) + 1) for j in range(3))
-            I, J, L = np.meshgrid(ix, iy, iz, indexing="ij")
-            idx = np.stack([I.ravel(), J.ravel(), L.ravel()], axis=1)
-            box_lo = self.lo + idx * self.cell
-            nearest = np.clip(center[k], box_lo, box_lo + self.cell)
-            touch = ((nearest - center[k]) ** 2).sum(axis=1) <= support[k] ** 2
-            for i, j, l in idx[touch]:
-                lists[(i * self.res[1] + j) * self.res[2] + l].append(k)
-        counts = np.array([len(c) for c in lists], dtype=np.int64)
+        # every (cluster, cell) pair of the cells its support's bounding box overlaps (numpy,
+        # vectorised), kept where the sphere touches the cell's box
+        a = np.clip(np.floor((center - support[:, None] - self.lo) / self.cell), 0,
+                    self.res - 1).astype(np.int64) if K else np.zeros((0, 3), dtype=np.int64)
+        b = np.clip(np.floor((center + support[:, None] - self.lo) / self.cell), 0,
+                    self.res - 1).astype(np.int64) if K else np.zeros((0, 3), dtype=np.int64)
+        span = b - a + 1
+        n = span.prod(axis=1)
+        k = np.repeat(np.arange(K), n)
+        r = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)  # rank within the box
+        sz, sy = span[k, 2], span[k, 1]
+        idx = a[k] + np.stack([r // (sy * sz), (r // sz) % sy, r % sz], axis=1)
+        box_lo = self.lo + idx * self.cell
+        nearest = np.clip(center[k], box_lo, box_lo + self.cell)
+        touch = ((nearest - center[k]) ** 2).sum(axis=1) <= support[k] ** 2
+        k, idx = k[touch], idx[touch]
+        cid = (idx[:, 0] * self.res[1] + idx[:, 1]) * self.res[2] + idx[:, 2]
+        order = np.lexsort((k, cid))  # per cell, clusters in index order
+        counts = np.bincount(cid, minlength=int(np.prod(self.res)))
         self.cell_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.cell_ids = (np.concatenate([np.asarray(c, dtype=np.int64) for c in lists])
-                         if counts.sum() else np.zeros(0, dtype=np.int64))
+        self.cell_ids = k[order].astype(np.int64)
 
     @property
     def nbytes(self) -> int:

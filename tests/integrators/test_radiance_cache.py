@@ -99,8 +99,7 @@ def test_open_plane_has_no_correction():
     assert integ.stats["NFGS"] >= 1 and integ.stats["bvh_visits"] > 0
 
 
-#: alpha of the corner tests: larger than the room's patches (triangles are not split to alpha,
-#: §5, so B_C sees a wall only through patch centroids within alpha) and than the strip width
+#: alpha of the corner tests: larger than the strip width next to the dark wall
 CORNER_ALPHA = 0.35
 
 

@@ -6,7 +6,8 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.form_factor import polygon_form_factor
-from mi_twopass.prepass.near_field import build_near_field, correction_numpy
+from mi_twopass.prepass.near_field import (NodeCells, build_near_field, correction_numpy,
+                                          split_near_triangles)
 
 
 def to_dr(a, cls):
@@ -164,3 +165,86 @@ def test_directional_far_field_matches_brute_force():
     np.testing.assert_allclose(correction_numpy(x, n, None, 0.9, verts, tn, tB, L_F=const),
                                correction_numpy(x, n, np.full((len(x), 3), 0.3 * np.pi), 0.9,
                                                 verts, tn, tB), atol=1e-9)
+
+
+def tri_area(v):
+    return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+
+
+def point_triangle_distance(x, v):
+    """Distance from each point x (P, 3) to each triangle v (T, 3, 3) by dense sampling of the
+    triangle (an upper bound, tight to the sampling step): (P, T)."""
+    u = np.linspace(0.0, 1.0, 41)
+    a, b = np.meshgrid(u, u)
+    keep = a + b <= 1.0
+    a, b = a[keep], b[keep]
+    q = (v[:, None, 0] + a[None, :, None] * (v[:, None, 1] - v[:, None, 0])
+         + b[None, :, None] * (v[:, None, 2] - v[:, None, 0]))  # (T, S, 3)
+    return np.linalg.norm(x[:, None, None] - q[None], axis=-1).min(axis=-1)
+
+
+def test_lazy_split_reaches_alpha_near_the_points_and_keeps_area():
+    """§5: triangles near the shading points are split until their longest edge is ≤ alpha,
+    those far from every point stay whole; total area, normals, radiosity, winding preserved."""
+    big = np.array([[[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 3.0, 0.0]],
+                    [[10.0, 0.0, 0.0], [14.0, 0.0, 0.0], [10.0, 0.0, 3.0]]])  # second: far away
+    tn = normals_of(big)
+    tB = np.array([[0.3, 0.2, 0.1], [0.9, 0.8, 0.7]])
+    pts = np.array([[0.5, 0.5, 0.2], [1.0, 1.5, -0.1]])
+    alpha = 0.4
+    v, n, B, complete = split_near_triangles(big, tn, tB, pts, alpha)
+    assert complete
+    np.testing.assert_allclose(tri_area(v).sum(), tri_area(big).sum(), rtol=1e-12)
+    near = point_triangle_distance(pts, v).min(axis=0) <= alpha
+    edge = np.linalg.norm(v[:, [1, 2, 0]] - v, axis=2).max(axis=1)
+    assert near.sum() > 10 and np.all(edge[near] <= alpha)
+    assert edge.max() > alpha  # the part far from the points was not split to alpha
+    assert any(np.allclose(t, big[1]) for t in v)  # the far triangle untouched
+    np.testing.assert_allclose(normals_of(v), n, atol=1e-9)  # winding kept
+    own = np.where(np.all(v[:, :, 2] == 0.0, axis=1), 0, 1)  # the near one lies in z = 0
+    np.testing.assert_array_equal(B, tB[own])
+
+
+def test_lazy_split_budget_and_no_points():
+    """The triangle budget stops the splitting (complete = False); without shading points
+    nothing is split."""
+    big = np.array([[[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 3.0, 0.0]]])
+    v, _, _, complete = split_near_triangles(big, normals_of(big), np.ones((1, 3)),
+                                             np.array([[1.0, 1.0, 0.0]]), 0.01,
+                                             max_triangles=50)
+    assert not complete and len(v) <= 50
+    np.testing.assert_allclose(tri_area(v).sum(), 6.0, rtol=1e-12)
+    v, _, _, complete = split_near_triangles(big, normals_of(big), np.ones((1, 3)),
+                                             np.zeros((0, 3)), 0.01)
+    assert complete and len(v) == 1
+
+
+@pytest.mark.parametrize("open_factor", [4.0, np.inf])
+def test_cell_start_lists_sum_what_the_root_walk_sums(open_factor):
+    """NodeCells: a lane that starts from its cell's list sums the same nodes as the walk from
+    the root (points at, between and away from the shading points), and the lists are shorter
+    than the walk; with open_factor = inf both equal the brute-force sum."""
+    rng = np.random.default_rng(11)
+    verts, tn, tB, _, _, _ = random_case(rng, T=120, P=1)
+    pts = rng.uniform(-1, 1, (200, 3))
+    alpha = 0.5
+    x = np.concatenate([pts, pts[:100] + rng.normal(0, 0.05, (100, 3)),
+                        rng.uniform(-3, 3, (50, 3))])
+    n = rng.normal(size=(len(x), 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    B_D = rng.uniform(0, 1, (len(x), 3))
+    root = build_near_field(verts, tn, tB)
+    cells = build_near_field(verts, tn, tB, points=pts, alpha=alpha, cell_size=0.25)
+    assert cells.cells.listed_cells > 0
+    got_root, v_root = run(root, x, n, B_D, alpha, open_factor=open_factor)
+    got, v = run(cells, x, n, B_D, alpha, open_factor=open_factor)
+    scale = max(1.0, np.abs(got_root).max())
+    np.testing.assert_allclose(got, got_root, atol=1e-6 * scale)
+    assert v[:200].mean() < 0.7 * v_root[:200].mean()
+    if not np.isfinite(open_factor):
+        ref = correction_numpy(x, n, B_D, alpha, verts, tn, tB)
+        np.testing.assert_allclose(got, ref, atol=2e-5 * scale)
+    # another alpha: the lists do not apply, the walk starts from the root
+    got2, _ = run(cells, x, n, B_D, 0.3, open_factor=open_factor)
+    np.testing.assert_allclose(got2, run(root, x, n, B_D, 0.3, open_factor=open_factor)[0],
+                               atol=1e-6 * scale)
