@@ -31,14 +31,16 @@ def emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active):
 
 
 def emitter_sample_mis(scene, si, bsdf, ctx, u, active):
-    """One emitter sample at ``si`` (Mitsuba's ``sample_emitter_direction`` with visibility):
+    """One emitter sample at ``si`` (Mitsuba's ``sample_emitter_direction``) and its shadow ray:
     ``(f·Le·w_MIS/p, cast)``: the BSDF-weighted contribution (β not included) and the lanes that
-    traced a shadow ray. MIS weight p_em² / (p_em² + p_bsdf²), 1 for delta emitters."""
-    ds, em_weight = scene.sample_emitter_direction(si, u, True, active)
-    cast = active & (ds.pdf != 0.0)
-    bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), cast)
+    traced a shadow ray (occluded ones included: the ray statistics count them). MIS weight
+    p_em² / (p_em² + p_bsdf²), 1 for delta emitters."""
+    ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
+    cast = active & (ds.pdf != 0.0) & dr.any(em_weight != 0.0)
+    visible = cast & ~scene.ray_test(si.spawn_ray_to(ds.p), cast)
+    bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), visible)
     w = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
-    return dr.select(cast, w * bsdf_val * em_weight, 0.0), cast
+    return dr.select(visible, w * bsdf_val * em_weight, 0.0), cast
 
 
 def by_component(value, is_direct, want_direct: bool, want_indirect: bool):

@@ -78,3 +78,18 @@ def test_first_nondelta_hit_follows_the_mirror_to_the_floor():
     assert bool(dr.all(cast))
     expected = 0.5 / np.pi * 1.0 / 4.0  # light 2 m straight above the floor point (0, -3, 0)
     np.testing.assert_allclose(np.array(Ld)[0], expected, rtol=1e-3)
+
+
+def test_an_occluded_emitter_sample_counts_as_a_shadow_ray():
+    scene = mi.load_dict({
+        "type": "scene", "floor": {"type": "rectangle"},
+        "blocker": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 1])},
+        "light": {"type": "point", "position": [0, 0, 2]}})
+    si = dr.zeros(mi.SurfaceInteraction3f, 1)
+    si.p, si.n = mi.Point3f(0, 0, 1e-3), mi.Vector3f(0, 0, 1)
+    si.sh_frame = mi.Frame3f(si.n)
+    si.wi = mi.Vector3f(0, 0, 1)
+    bsdf = mi.load_dict({"type": "diffuse"})
+    Ld, cast = emitter_sample_mis(scene, si, bsdf, mi.BSDFContext(), mi.Point2f(0.5, 0.5),
+                                  mi.Bool(True))
+    assert bool(dr.all(cast)) and np.array(Ld).max() == 0.0
