@@ -13,11 +13,15 @@ is left of the difference to the reference is bias:
   (sources falsely excluded from a list, sources between E_low and E_high outside their
   influence region, near unlisted sources with ``complete=false``);
 * ``±``: two standard errors of that mean, from the spread of the per-seed means;
+* ``− first row``: the bias minus the first configuration's, with the seeds paired (the
+  renders of one seed share their random numbers, so most of the noise cancels): with
+  ``complete=true`` first, the truncation of the other settings;
 * ``relMSE avg``: relMSE of the averaged image (residual noise / seeds + bias²);
 * ``relMSE 1``: the mean relMSE of one render (what a user sees at ``--spp``);
 * prepass and render seconds (means over the seeds; the first, untimed render of each
   configuration compiles kernels), explicit and implicit rays per viewing ray, spike-list
-  mean length, visibility rays and the pairs the point sampling excluded.
+  mean length, visibility rays, and what became of the candidate (cell, source) pairs: culled
+  behind every point's horizon, excluded by the point-sampled visibility (g = 0), listed.
 
 Prints a Markdown table (README "Results") and writes it with the per-config numbers as JSON.
 """
@@ -87,22 +91,35 @@ def summarise(spec, images, rows, ref):
         spike_list_mean=mean_of("spike_list_mean"), spike_list_max=mean_of("spike_list_max"),
         visibility_rays=mean_of("visibility_rays"),
         candidate_pairs=mean_of("candidate_pairs"),
-        excluded_pairs=mean_of("visibility_excluded"), seeds=n)
+        excluded_pairs=mean_of("visibility_excluded"), behind_horizon=mean_of("behind_horizon"),
+        seeds=n, per_seed_bias=means.tolist())
+
+
+def paired_difference(r, first):
+    """Bias of ``r`` minus that of ``first`` (%), ± two standard errors, from the per-seed
+    means: the renders of one seed share their random numbers, so most noise cancels."""
+    d = np.array(r["per_seed_bias"]) - np.array(first["per_seed_bias"])
+    se = d.std(ddof=1) / np.sqrt(d.size) if d.size > 1 else float("nan")
+    return 100.0 * float(d.mean()), 200.0 * float(se)
 
 
 def markdown(results, spp):
-    head = ("| settings | bias % (±2 s.e.) | relMSE of mean | relMSE of one render "
+    head = ("| settings | bias % (±2 s.e.) | − first row, paired (%) | relMSE of mean | "
+            "relMSE of one render "
             f"({spp} spp) | prepass s | render s | explicit / viewing ray | list mean | "
-            "visibility rays | pairs excluded |")
-    lines = [head, "|" + " --- |" * 10]
+            "visibility rays | candidate pairs: behind horizon / excluded by rays / listed |")
+    lines = [head, "|" + " --- |" * 11]
     for r in results:
         name = r["integrator"].split(":", 1)[1] if ":" in r["integrator"] else "(defaults)"
+        dm, dse = paired_difference(r, results[0])
         lines.append(
             f"| {name} | {r['bias_percent']:+.2f} (±{r['bias_2se_percent']:.2f}) | "
+            f"{dm:+.2f} (±{dse:.2f}) | "
             f"{r['relmse_avg']:.2e} | {r['relmse_single']:.2e} | {r['prepass_seconds']:.2f} | "
             f"{r['render_seconds']:.2f} | {r['explicit_per_viewing']:.2f} | "
             f"{r['spike_list_mean']:.1f} | {r['visibility_rays'] / 1e6:.2f} M | "
-            f"{r['excluded_pairs']:.0f} / {r['candidate_pairs']:.0f} |")
+            f"{r['behind_horizon']:.0f} / {r['excluded_pairs']:.0f} / "
+            f"{r['candidate_pairs'] - r['behind_horizon'] - r['excluded_pairs']:.0f} |")
     return "\n".join(lines)
 
 
