@@ -225,6 +225,40 @@ def project_least_squares(dirs, values, weights=None, reg=DEFAULT_REG):
     return S[:, 0] if scalar else S
 
 
+def project_least_squares_groups(dirs, values, group, n_groups, reg=DEFAULT_REG):
+    r""":func:`project_least_squares` (unit weights) of many groups of samples at once: sample i
+    belongs to group ``group[i]`` ∈ [0, ``n_groups``). Each group's regularised normal equations
+    :math:`(C^T C + \mathrm{reg}\,\mathrm{diag}\,\kappa)\, S = C^T R` are formed from
+    the samples sorted by group and solved as one batch of 9 × 9 systems; with reg > 0 they are definite, so the
+    result is the same fit (a group with no samples gets zero). ``reg = 0`` (minimum-norm fits of
+    possibly singular systems) falls back to one :func:`project_least_squares` per group.
+
+    ``dirs`` ``(n, 3)``, ``values`` ``(n, C)``, ``group`` ``(n,)`` ints → ``(n_groups, 9, C)``."""
+    if not (reg >= 0 and math.isfinite(reg)):
+        raise ValueError(f"reg={reg}: must be finite and >= 0")
+    dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+    values = np.asarray(values, dtype=np.float64).reshape(len(dirs), -1)
+    group = np.asarray(group, dtype=np.int64).reshape(len(dirs))
+    K, C = int(n_groups), values.shape[1]
+    if reg == 0:
+        return np.stack([project_least_squares(dirs[group == k], values[group == k], reg=0.0)
+                         .reshape(SH_COUNT, C) for k in range(K)]) if K else \
+            np.zeros((0, SH_COUNT, C))
+    Y = sh_basis(dirs) if len(dirs) else np.zeros((0, SH_COUNT))
+    # per-group normal equations from contiguous slices of the samples sorted by group
+    order = np.argsort(group, kind="stable")
+    Y, values, group = Y[order], values[order], group[order]
+    bounds = np.searchsorted(group, np.arange(K + 1))
+    A = np.zeros((K, SH_COUNT, SH_COUNT))
+    b = np.zeros((K, SH_COUNT, C))
+    for k in np.nonzero(np.diff(bounds))[0]:
+        Yk = Y[bounds[k]:bounds[k + 1]]
+        A[k] = Yk.T @ Yk
+        b[k] = Yk.T @ values[bounds[k]:bounds[k + 1]]
+    A = A + reg * np.diag(np.asarray(KAPPA, dtype=np.float64))
+    return np.linalg.solve(A, b)
+
+
 def project_monte_carlo(dirs, values, pdf):
     r"""Unbiased Monte Carlo projection :math:`S_k = \frac1n \sum_i R_i\,Y_k(D_i) / p(D_i)`.
 

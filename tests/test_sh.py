@@ -285,3 +285,20 @@ def test_drjit_matches_numpy():
     # per-lane coefficients (as gathered from a cache) and single-channel mi.Float
     S_lane = [mi.Float(np.full(256, c, dtype=np.float32)) for c in S[:, 0]]
     np.testing.assert_allclose(np.asarray(sh.irradiance(S_lane, dv)), sh.irradiance(S[:, :1], d)[:, 0], atol=1e-5)
+
+
+@pytest.mark.parametrize("reg", [1e-2, 0.0])
+def test_grouped_least_squares_matches_one_fit_per_group(reg):
+    rng = np.random.default_rng(7)
+    n, K = 600, 7
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    vals = rng.uniform(0, 2, size=(n, 3))
+    group = rng.integers(0, K - 1, n)  # group K - 1 stays empty
+    group[:3] = 2  # and group 2 is not special: just more samples
+    S = sh.project_least_squares_groups(d, vals, group, K, reg=reg)
+    assert S.shape == (K, sh.SH_COUNT, 3)
+    for k in range(K - 1):
+        ref = sh.project_least_squares(d[group == k], vals[group == k], reg=reg)
+        np.testing.assert_allclose(S[k], ref, rtol=1e-8, atol=1e-10)
+    assert np.all(S[K - 1] == 0.0)

@@ -424,9 +424,8 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     L = L.reshape(3, -1).T if L.shape[0] == 3 and L.ndim == 2 else L
     far = ~np.isfinite(dist) | (dist >= alpha)
     L = np.where(np.isfinite(L), L, 0.0)
-    for k in range(K):  # a few hundred small least-squares fits: numpy bookkeeping
-        sel = (owner == k) & far
-        coeffs[k] = sh.project_least_squares(d[sel], L[sel], reg=reg)
+    # one regularised least-squares fit per cluster, solved as a batch (eq. 4)
+    coeffs = sh.project_least_squares_groups(d[far], L[far], owner[far], K, reg=reg)
     return coeffs, len(src)
 
 
