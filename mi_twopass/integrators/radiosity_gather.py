@@ -24,6 +24,11 @@ MIN_PARTICLES = 1 << 16
 
 
 
+#: property / exposure samples per receiving element (a patch keeps SAMPLES_PER_PATCH = 16;
+#: its 16 elements together get 64)
+ELEMENT_SAMPLES = 4
+
+
 class RadiosityGatherIntegrator(TwoPassIntegrator):
     r"""
     .. _integrator-radiosity_gather:
@@ -70,6 +75,13 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
      * - particles_per_patch
        - |int|
        - Particles the stochastic radiosity solver shoots per patch (default: 256).
+     * - elements_per_patch
+       - |int|
+       - Receiving elements per patch (Cohen et al. 1986 substructuring; default: 16, i.e.
+         elements of a quarter of the patch edge). The particles deposit in patches and in
+         elements; a far gather ray reads the element it hits. A patch's area mean reads dark
+         where gather rays land (irradiance and hit density covary inside a patch), by an
+         amount proportional to the edge length; 1 turns elements off.
      * - prepass_scene
        - |string|
        - Scene file of a simplified ("massing") scene to run the prepass on and to trace far
@@ -95,6 +107,7 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
             raise ValueError(f"r_thresh={self.r_thresh_abs}: must be >= 0")
         self.max_patches = read_int(props, "max_patches", 1024, minimum=1)
         self.particles_per_patch = read_int(props, "particles_per_patch", 256, minimum=1)
+        self.elements_per_patch = read_int(props, "elements_per_patch", 16, minimum=1)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.prepass_scene_path = props.get("prepass_scene", "")
@@ -102,16 +115,22 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
             raise SceneFileError(f"prepass_scene: file not found: {self.prepass_scene_path}")
 
     def settings(self):
-        return (self.max_patches, self.particles_per_patch, self.vl_threshold,
-                self.prepass_scene_path)
+        return (self.max_patches, self.particles_per_patch, self.elements_per_patch,
+                self.vl_threshold, self.prepass_scene_path)
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
-        """GSII steps 1–2: patches of the (simplified) scene and their radiosity."""
+        """GSII steps 1–2: patches (and receiving elements) of the (simplified) scene and their
+        radiosity. The particle count follows the patches, not the elements."""
         gather_scene = load_scene(self.prepass_scene_path) if self.prepass_scene_path else scene
         patches = build_patches(gather_scene, max_patches=self.max_patches, seed=seed)
+        elements = None
+        if self.elements_per_patch > 1:
+            elements = build_patches(gather_scene, seed=seed, samples=ELEMENT_SAMPLES,
+                                     max_patches=self.elements_per_patch * self.max_patches)
         n_particles = max(MIN_PARTICLES, self.particles_per_patch * patches.count)
-        solution = solve_radiosity(gather_scene, patches, n_particles=n_particles, seed=seed)
+        solution = solve_radiosity(gather_scene, patches, n_particles=n_particles, seed=seed,
+                                   elements=elements)
         self.gather_scene = gather_scene
         self._setup_virtual_luminaires(solution)
         return solution
@@ -137,7 +156,11 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
             self.vl_ids = self.vl_distr = self.vl_pmf = None
 
     def prepass_stats(self, solution):
-        return {"prepass_rays": int(solution.rays), "patches": int(solution.patches.count),
+        probe = solution.patches.probe_rays + (solution.elements.probe_rays
+                                               if solution.elements is not None else 0)
+        return {"prepass_rays": int(solution.rays) + int(probe),
+                "patches": int(solution.patches.count),
+                "elements": int(solution.elements.count) if solution.elements is not None else 0,
                 "virtual_luminaires": self.vl_count, "cache_bytes": int(solution.nbytes)}
 
     def r_thresh(self, scene) -> float:
@@ -151,8 +174,9 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
 
         A gather ray is *far* when it travels at least ``r_thresh`` and lands on a diffuse
         patch; with a ``prepass_scene`` the ray is traced again in the massing model and reads
-        its patches. Virtual luminaires give 0: they are sampled explicitly. The patch is looked
-        up once per hit."""
+        its patches. Virtual luminaires give 0: they are sampled explicitly. The value is the
+        element's (``elements_per_patch``; the patch's without elements): see
+        :func:`mi_twopass.prepass.radiosity.solve_radiosity` for why a patch mean is biased."""
         sol = self.structure
         far = gather_ray & si.is_valid() & (si.t >= r_thresh)
         pid = sol.patches.lookup(si, far)
@@ -161,7 +185,9 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
             si_massing = self.gather_scene.ray_intersect(ray, far)
             pid = sol.patches.lookup(si_massing, far & si_massing.is_valid())
         counted = far & ~dr.gather(mi.Bool, self.vl_mask, pid, far)
-        return sol.patch_reflected_radiance(pid, counted), far
+        if sol.elements is None:
+            return sol.patch_reflected_radiance(pid, counted), far
+        return sol.reflected_radiance(si_massing if self.prepass_scene_path else si, counted), far
 
     def sample_virtual(self, scene, sampler, si, bsdf, ctx, r_thresh, active):
         """One explicit sample of a virtual luminaire: f · (B_r/π) · G / pdf, for |y−x| ≥ r_thresh."""

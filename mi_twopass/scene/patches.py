@@ -25,6 +25,17 @@ normal (``si.n``, flip_normals included) points to. A shape whose BSDF is diffus
 (``twosided``) gets a second, *back* patch for every front patch, with the reversed normal;
 a hit on the back of a one-sided shape has no patch (its BSDF is black there).
 
+**Exposed area.** Interpenetrating and touching geometry buries part of a patch: the floor
+under a cabinet, the strip of a wall box inside the floor box. No particle and no gather ray
+reaches a buried point, so the collision estimator E_i = ΣΦ/A_i (Zimmerman & Shirley §3.3 step 2)
+must divide by the *exposed* area, or every straddling patch is too dark by its buried fraction —
+a bias proportional to the patch edge length (1024 → 4096 patches halves it). Each patch's
+``SAMPLES_PER_PATCH`` property points are probed (:func:`_probe_enclosed`: three rays from a hair
+above the point; a point all of whose rays first hit the back of a surface that is opaque and
+black from behind lies inside a closed object), ``area`` is the geometric area times the open
+fraction, and albedo and emission are averaged over the open points only. ``geometric_area``
+keeps the full area (the sampler and the lookup still cover it).
+
 Patch ids are laid out per shape: ``[front patches][back patches]``; the id ``N`` (``count``)
 means "no patch" and every Dr.Jit table has a zero entry at ``N`` so gathers need no mask.
 """
@@ -318,11 +329,12 @@ class Patches:
     """The patches of a scene (numpy), with Dr.Jit tables for lookups and sampling.
 
     ``N = count`` patches; ``T`` triangles (``tri_*``), sorted by patch, wound so that
-    ``cross(v1 − v0, v2 − v0)`` points to the patch's side. ``area`` is the true surface area
-    (for analytic shapes the cell area of the curved surface, for meshes the sum of triangles).
+    ``cross(v1 − v0, v2 − v0)`` points to the patch's side. ``geometric_area`` is the true
+    surface area (for analytic shapes the cell area of the curved surface, for meshes the sum of
+    triangles); ``area`` is its exposed part, ``geometric_area × exposure`` (module docstring).
     """
 
-    area: np.ndarray  # (N,) m²
+    area: np.ndarray  # (N,) m², exposed (not buried in closed geometry): E = ΣΦ / area
     center: np.ndarray  # (N, 3)
     normal: np.ndarray  # (N, 3) unit, pointing to the patch's side
     albedo: np.ndarray  # (N, 3) diffuse reflectance, 0 where not is_diffuse
@@ -338,6 +350,9 @@ class Patches:
     bbox_min: np.ndarray
     bbox_max: np.ndarray
     shape_names: list = field(default_factory=list)
+    geometric_area: np.ndarray | None = None  # (N,) m², whole patch, buried parts included
+    exposure: np.ndarray | None = None  # (N,) open fraction area / geometric_area (probed)
+    probe_rays: int = 0  # rays cast by the exposure probe
     _tables: dict = field(default_factory=dict, repr=False)
 
     # -- sizes -------------------------------------------------------------------------------
@@ -468,10 +483,14 @@ def _dr_nbytes(v):
 # Building
 
 
-def build_patches(scene, max_patches: int = 4096, seed: int = 0) -> Patches:
+def build_patches(scene, max_patches: int = 4096, seed: int = 0,
+                  samples: int = SAMPLES_PER_PATCH) -> Patches:
     """Patches of ``scene`` under the budget ``max_patches`` (see the module docstring).
 
-    ``seed`` drives the points at which albedo and emitted radiance are averaged."""
+    ``seed`` drives the points at which albedo, emitted radiance and exposure are averaged,
+    ``samples`` of them per patch (fewer suit receiving elements, which are many and small)."""
+    if int(samples) < 1:
+        raise ValueError(f"samples={samples}: must be >= 1")
     if int(max_patches) < 1:
         raise ValueError(f"max_patches={max_patches}: must be >= 1")
     max_patches = int(max_patches)
@@ -522,10 +541,13 @@ def build_patches(scene, max_patches: int = 4096, seed: int = 0) -> Patches:
     order = np.argsort(tri_p, kind="stable")
     tri_v, tri_p, tri_n = tri_v[order], tri_p[order], tri_n[order]
 
-    albedo, is_diffuse, Le = _evaluate_properties(scene, parts, N, seed)
+    albedo, is_diffuse, Le, exposure, probe_rays = _evaluate_properties(scene, parts, N, seed,
+                                                                        int(samples))
+    geometric_area = area.astype(np.float64)
 
     patches = Patches(
-        area=area.astype(np.float64), center=center, normal=normal, albedo=albedo,
+        area=geometric_area * exposure, geometric_area=geometric_area, exposure=exposure,
+        probe_rays=probe_rays, center=center, normal=normal, albedo=albedo,
         is_diffuse=is_diffuse, Le=Le, shape_index=shape_index, side=side,
         tri_vertices=tri_v.astype(np.float32), tri_patch=tri_p.astype(np.uint32),
         tri_normal=tri_n.astype(np.float32), target_area=float(a), max_patches=max_patches,
@@ -643,18 +665,25 @@ def _build_grid(g, a):
                 tri_local=tri_local, tri_n=tri_n, nu=nu, nv=nv)
 
 
-def _evaluate_properties(scene, parts, N, seed):
-    """Albedo (``eval_diffuse_reflectance``) and emitted radiance averaged over each patch.
+def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
+    """Albedo, emitted radiance and exposure of each patch: ``(albedo, is_diffuse, Le,
+    exposure, probe_rays)``.
 
-    ``SAMPLES_PER_PATCH`` uniform points per patch become surface interactions through the
-    shape's own ``compute_surface_interaction`` (uv, frames and textures as Mitsuba has them)."""
+    ``k`` (``SAMPLES_PER_PATCH``) uniform points per patch become surface interactions through the
+    shape's own ``compute_surface_interaction`` (uv, frames and textures as Mitsuba has them).
+    Each point is probed (:func:`_probe_enclosed`); ``exposure`` is the open fraction of the
+    points, and ``eval_diffuse_reflectance`` and the emitter's radiance are averaged over the
+    open points — the part of the patch light and gather rays can reach. A patch none of whose
+    points is open gets exposure 0 (its albedo and emission are then the plain averages);
+    should particles reach it nonetheless (an open sliver the probe missed), the solver falls
+    back to its geometric area."""
     albedo = np.zeros((N, 3))
     Le = np.zeros((N, 3))
     is_diffuse = np.zeros(N, dtype=bool)
+    exposure = np.ones(N)
     if N == 0:
-        return albedo, is_diffuse, Le
+        return albedo, is_diffuse, Le, exposure, 0
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9A7C]))
-    k = SAMPLES_PER_PATCH
     pos_in_dr = {int(r): i for i, r in
                  enumerate(np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())))}
     P, Nrm, prim, bary, dr_index, patch_of, wi_z = [], [], [], [], [], [], []
@@ -732,14 +761,60 @@ def _evaluate_properties(scene, parts, N, seed):
     emitted = si.emitter(scene).eval(si, True)
     rho_np = np.nan_to_num(np.array(rho, dtype=np.float64).T.reshape(n, 3), nan=0.0)
     le_np = np.nan_to_num(np.array(emitted, dtype=np.float64).T.reshape(n, 3), nan=0.0)
+
+    side_normal = Nrm * wi_z[:, None]  # the patch's side: the back patch looks the other way
+    enclosed = _probe_enclosed(scene, P, side_normal, delta, rng)
+    open_pts = np.bincount(patch_of, weights=(~enclosed).astype(np.float64), minlength=N)
+    has_open = open_pts > 0
+    exposure = open_pts / k
+    # weights: the open points of a patch that has some, all of its points otherwise
+    w = np.where(has_open[patch_of], (~enclosed).astype(np.float64), 1.0)
+    w_sum = np.bincount(patch_of, weights=w, minlength=N)
+    w_sum = np.where(w_sum > 0, w_sum, 1.0)
     for c in range(3):
-        albedo[:, c] = np.bincount(patch_of, weights=rho_np[:, c], minlength=N) / k
-        Le[:, c] = np.bincount(patch_of, weights=le_np[:, c], minlength=N) / k
+        albedo[:, c] = np.bincount(patch_of, weights=w * rho_np[:, c], minlength=N) / w_sum
+        Le[:, c] = np.bincount(patch_of, weights=w * le_np[:, c], minlength=N) / w_sum
     for part in parts:
         g, K, b0 = part["geom"], part["K"], part["base"]
         is_diffuse[b0:b0 + K * _sides(g)] = g.diffuse
     albedo = np.where(is_diffuse[:, None], np.maximum(albedo, 0.0), 0.0)
-    return albedo, is_diffuse, np.maximum(Le, 0.0)
+    return albedo, is_diffuse, np.maximum(Le, 0.0), exposure, 3 * n
+
+
+def _probe_enclosed(scene, P, n, delta, rng):
+    """Boolean per point: ``P`` lifted by ``delta`` along ``n`` lies inside a closed object.
+
+    Three rays leave the lifted point: along ``n`` and both ways along a random tangent. The
+    point is *enclosed* when each ray first hits the back of a surface that is opaque and black
+    from behind (a one-sided BSDF without transmission or null component: light cannot pass it
+    and it reflects nothing inwards), i.e. when the point is buried in a closed, outward-facing
+    object — a wall box's face inside the floor box, the floor under a cabinet. A ray that
+    escapes or meets a front face proves a way out. A two-sided surface never encloses (its
+    orientation says nothing about which side is inside), so buried parts of two-sided objects
+    keep counting as exposed, the former behaviour. Same points and rng state → same answer."""
+    m = P.shape[0]
+    a = np.where(np.abs(n[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    t1 = np.cross(n, a)
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-300)
+    t2 = np.cross(n, t1)
+    phi = rng.random(m) * 2 * np.pi
+    tangent = np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2
+
+    def vec(x, cls):
+        return cls(*(mi.Float(np.ascontiguousarray(x[:, i], dtype=np.float32)) for i in range(3)))
+
+    origin = vec(P + n * delta, mi.Point3f)
+    enclosed = mi.Bool(True)
+    closing_flags = int(mi.BSDFFlags.BackSide) | int(mi.BSDFFlags.Transmission) \
+        | int(mi.BSDFFlags.Null)
+    for d in (n, tangent, -tangent):
+        ray = mi.Ray3f(origin, vec(d, mi.Vector3f))
+        si = scene.ray_intersect(ray, mi.RayFlags.Minimal, False, enclosed)
+        flags = si.bsdf(ray).flags()
+        closes = si.is_valid() & (dr.dot(si.n, ray.d) > 0) \
+            & ((flags & mi.UInt32(closing_flags)) == 0)
+        enclosed &= closes
+    return np.array(enclosed, dtype=bool).reshape(m)
 
 
 def _make_tables(patches, parts, tri_v, tri_p, tri_n):

@@ -321,3 +321,32 @@ def test_empty_patch_set():
     sol = solve_radiosity(scene, patches, n_particles=1000, seed=0, progress=False)
     assert sol.B.shape == (0, 3)
     assert np.all(np.isclose(sol.flux_escaped, sol.flux_emitted))
+
+
+def test_elements_refine_patches_without_changing_them():
+    """Elements (a finer patch mesh) receive the same particles: the patch solution is the same
+    bit for bit, each patch's flux equals the flux of the elements inside it, and the finer
+    solution resolves the fall-off of a point light's irradiance on a plane."""
+    scene = plane_scene({"type": "point", "position": [0.0, 0.0, 1.0],
+                         "intensity": rgb(1.0)})
+    patches = build_patches(scene, max_patches=16)
+    elements = build_patches(scene, max_patches=256)
+    plain = solve_radiosity(scene, patches, n_particles=1 << 16, seed=5, progress=False)
+    sol = solve_radiosity(scene, patches, n_particles=1 << 16, seed=5, progress=False,
+                          elements=elements)
+    np.testing.assert_array_equal(sol.E, plain.E)
+    assert plain.elements is None and sol.elements is elements
+    np.testing.assert_allclose((sol.E_elements * elements.area[:, None]).sum(0),
+                               (sol.E * patches.area[:, None]).sum(0), rtol=1e-6)
+    np.testing.assert_allclose(sol.B_reflected_elements, elements.albedo * sol.E_elements)
+    # the brightest element (under the light) is brighter than its patch's mean
+    assert sol.E_elements.max() > 1.5 * sol.E.max()
+    # queries: the element value at a hit
+    ray = mi.Ray3f(mi.Point3f(0.01, 0.02, 1.0), mi.Vector3f(0, 0, -1))
+    si = scene.ray_intersect(ray)
+    L = np.array(sol.reflected_radiance(si)).ravel()
+    eid = int(np.array(elements.lookup(si))[0])
+    np.testing.assert_allclose(L, sol.B_reflected_elements[eid] / math.pi, rtol=1e-5)
+    again = solve_radiosity(scene, patches, n_particles=1 << 16, seed=5, progress=False,
+                            elements=elements)
+    np.testing.assert_array_equal(again.E_elements, sol.E_elements)

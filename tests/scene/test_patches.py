@@ -336,3 +336,36 @@ def test_sample_points_uniform_on_patch():
     ok = se > 1e-9
     assert np.all(np.abs(z[ok]) < 5.5)
     assert abs(np.mean(z[ok] ** 2) - 1.0) < 0.2  # z² averages 1 when the sampler is uniform
+
+
+# ---------------------------------------------------------------------------------------------
+# exposed area: parts of a patch buried in closed geometry
+
+
+def test_exposure_of_floor_under_a_box():
+    """A closed diffuse cube standing on a 4×4 floor covers 1/4 of it: the floor's exposed area
+    is 3/4 of its geometric area (the probe's points are random: binomial error); an open scene
+    keeps exposure 1."""
+    V = np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    floor = make_mesh("floor", V, F)
+    scene = mi.load_dict({
+        "type": "scene", "floor": floor,
+        "box": {"type": "cube", "to_world": T().translate([-1.0, -1.0, 1.0]).scale(1.0)},
+    })
+    p = build_patches(scene, max_patches=256, seed=3)
+    np.testing.assert_allclose(p.area, p.geometric_area * p.exposure)
+    names = np.array(p.shape_names)[p.shape_index]
+    on_floor = names == "floor"
+    open_frac = p.area[on_floor].sum() / p.geometric_area[on_floor].sum()
+    n_probes = on_floor.sum() * 16
+    assert abs(open_frac - 0.75) < 4 * math.sqrt(0.75 * 0.25 / n_probes) + 0.02
+    # the floor is an open sheet: the cube's bottom face looks into open space below it
+    assert np.all(p.exposure[~on_floor] == 1.0)
+    assert np.any(p.exposure[on_floor] == 0.0)  # floor patches wholly under the cube
+    assert p.probe_rays == 3 * 16 * p.count
+    # nothing closed in the scene: every patch fully exposed
+    p_open = build_patches(mi.load_dict({"type": "scene", "floor": make_mesh("floor", V, F)}),
+                           max_patches=64)
+    assert np.all(p_open.exposure == 1.0)
+    np.testing.assert_allclose(p_open.area, p_open.geometric_area)
