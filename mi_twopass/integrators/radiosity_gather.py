@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..prepass.radiosity import solve_radiosity
+from ..prepass.radiosity import receiving_elements, solve_radiosity
 from ..scene.patches import build_patches
 from ..scenefile import SceneFileError, load_scene
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
@@ -22,11 +22,6 @@ DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 #: fewest particles the prepass shoots, however few patches (per-patch noise ~ 1/sqrt(n/N))
 MIN_PARTICLES = 1 << 16
 
-
-
-#: property / exposure samples per receiving element (a patch keeps SAMPLES_PER_PATCH = 16;
-#: its 16 elements together get 64)
-ELEMENT_SAMPLES = 4
 
 
 class RadiosityGatherIntegrator(TwoPassIntegrator):
@@ -124,10 +119,8 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
         radiosity. The particle count follows the patches, not the elements."""
         gather_scene = load_scene(self.prepass_scene_path) if self.prepass_scene_path else scene
         patches = build_patches(gather_scene, max_patches=self.max_patches, seed=seed)
-        elements = None
-        if self.elements_per_patch > 1:
-            elements = build_patches(gather_scene, seed=seed, samples=ELEMENT_SAMPLES,
-                                     max_patches=self.elements_per_patch * self.max_patches)
+        elements = receiving_elements(gather_scene, self.max_patches, self.elements_per_patch,
+                                      seed)
         n_particles = max(MIN_PARTICLES, self.particles_per_patch * patches.count)
         solution = solve_radiosity(gather_scene, patches, n_particles=n_particles, seed=seed,
                                    elements=elements)

@@ -8,7 +8,7 @@ import time
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.radiosity import solve_radiosity
+from ..prepass.radiosity import receiving_elements, solve_radiosity
 from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
@@ -208,6 +208,12 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
          ``radiosity_gather``'s: here the radiosity only feeds far gather rays and the
          reclassified sources; on ``many_lights.xml`` 64² the relMSE at 512 spp was the same
          as with 256, 9.5e-3, and the prepass 0.4 s shorter; ``tools/spike_truncation.py``).
+     * - elements_per_patch
+       - |int|
+       - Receiving elements per radiosity patch, read by far gather rays (as in
+         ``radiosity_gather``: a patch's area mean reads dark where gather rays land on its
+         lit part; default: 4, i.e. 16 k elements at the default 4096 patches, the element
+         count of ``radiosity_gather``'s defaults; 1 turns them off).
      * - vl_threshold
        - |float|
        - Patches with B_r ≥ vl_threshold × max B_r become sources (virtual luminaires; default:
@@ -257,13 +263,15 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
             raise ValueError(f"r_thresh={self.r_thresh_abs}: must be >= 0")
         self.max_patches = read_int(props, "max_patches", 4096, minimum=1)
         self.particles_per_patch = read_int(props, "particles_per_patch", 64, minimum=1)
+        self.elements_per_patch = read_int(props, "elements_per_patch", 4, minimum=1)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
 
     def settings(self):
         return (self.grid_res, self.e_high_rel, self.e_low_rel, self.e_high, self.e_low,
                 self.influence_rel, self.influence, self.visibility_max_rays, self.camera_res,
-                self.cell_points, self.max_patches, self.particles_per_patch, self.vl_threshold,
+                self.cell_points, self.max_patches, self.particles_per_patch,
+                self.elements_per_patch, self.vl_threshold,
                 self.gather_cells, self.r_thresh_rel, self.r_thresh_abs)
 
     def spike_settings(self, scene) -> SpikeSettings:
@@ -278,8 +286,10 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         """GSII steps 1–2 (patches, radiosity), then §3.3 step 3: sources and spike lists."""
         t0 = time.perf_counter()
         patches = build_patches(scene, max_patches=self.max_patches, seed=seed)
+        elements = receiving_elements(scene, self.max_patches, self.elements_per_patch, seed)
         n_particles = max(1, self.particles_per_patch * patches.count)
-        solution = solve_radiosity(scene, patches, n_particles=n_particles, seed=seed)
+        solution = solve_radiosity(scene, patches, n_particles=n_particles, seed=seed,
+                                   elements=elements)
         t_rad = time.perf_counter() - t0
         rounds = self.visibility_max_rays // 10
         with progress_bar(total=rounds, desc="spike lists", unit="round") as bar:
@@ -288,15 +298,18 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
                                       e_high_rel=self.e_high_rel, e_low_rel=self.e_low_rel,
                                       E_high=self.e_high, E_low=self.e_low, seed=seed,
                                       progress=bar)
+        probe_rays = patches.probe_rays + (elements.probe_rays if elements is not None else 0)
         pre.stats.update(radiosity_seconds=t_rad, radiosity_rays=int(solution.rays),
-                         patches=int(patches.count),
+                         patches=int(patches.count), probe_rays=int(probe_rays),
+                         elements=int(elements.count) if elements is not None else 0,
                          spike_seconds=time.perf_counter() - t0 - t_rad)
         return pre
 
     def prepass_stats(self, pre):
         st = dict(pre.stats)
         st.update(
-            prepass_rays=int(pre.solution.rays) + st["camera_rays"] + st["visibility_rays"],
+            prepass_rays=int(pre.solution.rays) + st["probe_rays"] + st["camera_rays"]
+            + st["visibility_rays"],
             grid_bytes=int(pre.grid.nbytes), radiosity_bytes=int(pre.solution.nbytes),
             cache_bytes=int(pre.nbytes))
         return st
@@ -410,7 +423,8 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
                 vl_sid = src.source_of_patch(pid, far & from_list)
                 vl_listed = grid.contains(prev_list_a, vl_sid, far & from_list)[0] \
                     | grid.contains(prev_list_b, vl_sid, far & from_list)[0]
-                L += beta * sol.patch_reflected_radiance(pid, far & ~vl_listed)
+                # the receiving element hit (the patch's value without elements)
+                L += beta * sol.reflected_radiance(si, far & ~vl_listed)
 
             active_next = active & si.is_valid() & ~far & (depth + 1 < max_depth)
             bsdf = si.bsdf(ray)

@@ -299,6 +299,21 @@ def _mix(seed: int) -> int:
     return z ^ (z >> 31)
 
 
+#: property / exposure samples per receiving element (a patch keeps SAMPLES_PER_PATCH = 16; its
+#: 16 elements at the default ratio together get 64)
+ELEMENT_SAMPLES = 4
+
+
+def receiving_elements(scene, max_patches: int, elements_per_patch: int, seed: int = 0):
+    """The receiving mesh of :func:`solve_radiosity` (Cohen et al. 1986 patch/element
+    substructuring): patches of ``elements_per_patch`` × ``max_patches`` budget, each probed at
+    ``ELEMENT_SAMPLES`` points; ``None`` for ``elements_per_patch`` ≤ 1 (elements off)."""
+    if int(elements_per_patch) <= 1:
+        return None
+    return build_patches(scene, max_patches=int(elements_per_patch) * int(max_patches),
+                         seed=seed, samples=ELEMENT_SAMPLES)
+
+
 def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | None = None,
                     seed: int = 0, max_bounces: int = DEFAULT_MAX_BOUNCES, progress: bool = True,
                     batch_size: int = 1 << 18, elements: Patches | None = None
