@@ -28,6 +28,8 @@ done
 "$PY" tools/equal_time_figure.py scenes_xml/many_lights.xml --seconds 2 \
     --integrators spike_gather:visibility_max_rays=20,spike_gather -D res=128 --ref-spp 16384 \
     -o docs/results/many_lights_equal_time.png
+"$PY" tools/equal_time_figure.py scenes_xml/window_interior.xml --seconds 1 \
+    --integrators radiance_cache -D res=128 -o docs/results/window_interior_equal_time.png
 "$PY" tools/results_table.py "$OUT"/cornell_box.json "$OUT"/office.json "$OUT"/caustic.json \
     "$OUT"/many_lights.json "$OUT"/128/many_lights.json "$OUT"/window_interior.json \
     "$OUT"/128/window_interior.json | tee "$OUT/results_table.md"
