@@ -128,7 +128,8 @@ def test_non_positive_grid_res_fails_at_load_time(bad):
     ({"defensive": 1.0}, "defensive"), ({"e_low": 5.0, "e_high": 1.0}, "e_low"),
     ({"debug": "cells"}, "debug"), ({"visibility_max_rays": 5}, "visibility_max_rays"),
     ({"camera_res": 0}, "camera_res"), ({"complete": "maybe"}, "complete"),
-    ({"r_thresh": -1.0}, "r_thresh"), ({"jitter": -0.5}, "jitter")])
+    ({"r_thresh": -1.0}, "r_thresh"), ({"jitter": -0.5}, "jitter"),
+    ({"gather_cells": "sometimes"}, "gather_cells"), ({"elements_per_patch": 0}, "elements_per_patch")])
 def test_bad_parameters_fail_at_load_time(props, name):
     with pytest.raises(Exception, match=name):
         mi.load_dict({"type": "spike_gather", **props})
@@ -295,8 +296,11 @@ def test_stats_reuse_components_and_debug_views():
     st = integrator.stats
     for key in ("viewing_rays", "implicit_rays", "explicit_rays", "prepass_rays",
                 "prepass_seconds", "render_seconds", "cache_bytes", "visibility_rays",
-                "spike_list_mean", "spike_list_max", "cells_with_lists", "grid_bytes"):
+                "spike_list_mean", "spike_list_max", "cells_with_lists", "grid_bytes",
+                "fallback_gathers", "behind_horizon", "bounce_points", "elements", "probe_rays"):
         assert key in st, key
+    assert 0 <= st["fallback_gathers"] <= st["explicit_rays"]
+    assert st["prepass_rays"] >= st["visibility_rays"] + st["probe_rays"] + st["camera_rays"]
     # r_thresh = 0: every gather ray is far, so at most one explicit and one implicit ray per
     # viewing ray (one each per camera ray that hits the scene)
     vr = st["viewing_rays"]
