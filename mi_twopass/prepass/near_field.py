@@ -382,16 +382,20 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     # [start, end) of it; a node of n triangles has 2n − 1 nodes in its subtree, so in pre-order
     # its left child is node + 1, its right child node + 2·n_left and its skip link node + 2n − 1.
     perm = np.arange(T)
+    # per-triangle terms gathered at every level: computed once
+    tri_lo, tri_hi = verts.min(axis=1), verts.max(axis=1)
+    wB, wN = tri_area[:, None] * tri_B, tri_area[:, None] * tri_normal
     start, end, node = np.array([0]), np.array([T]), np.array([0])
     while len(node):
         n_seg = end - start
         seg = np.repeat(np.arange(len(node)), n_seg)  # segment of each position of perm
-        ids = perm[_ranges(start, end)]
+        at = _ranges(start, end)
+        ids = perm[at]
         # node aggregates (reduceat over the contiguous segments)
         first = n_seg.cumsum() - n_seg
         vp = verts[ids]  # (Σn, 3, 3)
-        lo = np.minimum.reduceat(vp.min(axis=1), first, axis=0)
-        hi = np.maximum.reduceat(vp.max(axis=1), first, axis=0)
+        lo = np.minimum.reduceat(tri_lo[ids], first, axis=0)
+        hi = np.maximum.reduceat(tri_hi[ids], first, axis=0)
         c_n = 0.5 * (lo + hi)
         d2 = ((vp - c_n[seg][:, None, :]) ** 2).sum(-1).max(axis=1)
         center[node] = c_n
@@ -403,11 +407,9 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
         ccenter[node] = 0.5 * (clo + chi)
         cradius[node] = np.sqrt(np.maximum.reduceat(((cts - ccenter[node][seg]) ** 2).sum(-1),
                                                     first))
-        w = tri_area[ids]
-        area[node] = np.add.reduceat(w, first)
-        B[node] = np.add.reduceat(w[:, None] * tri_B[ids], first, axis=0) / area[node][:, None]
-        normal[node] = (np.add.reduceat(w[:, None] * tri_normal[ids], first, axis=0)
-                        / area[node][:, None])
+        area[node] = np.add.reduceat(tri_area[ids], first)
+        B[node] = np.add.reduceat(wB[ids], first, axis=0) / area[node][:, None]
+        normal[node] = np.add.reduceat(wN[ids], first, axis=0) / area[node][:, None]
         skip[node] = node + 2 * n_seg - 1
         leaf = n_seg == 1
         tri[node[leaf]] = ids[first[leaf]]
@@ -415,7 +417,7 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
         axis = np.argmax(chi - clo, axis=1)
         key = cts[np.arange(len(ids)), axis[seg]]
         order = np.lexsort((key, seg))
-        perm[_ranges(start, end)] = ids[order]
+        perm[at] = ids[order]
         inner = ~leaf
         n_left = n_seg[inner] // 2
         s_i, e_i, nd = start[inner], end[inner], node[inner]
