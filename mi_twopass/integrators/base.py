@@ -52,6 +52,16 @@ def read_int(props, name, default, minimum=None):
     return value
 
 
+def read_bool(props, name, default):
+    """Read a boolean property (a bool, or the strings "true" / "false")."""
+    value = props.get(name, default)
+    if isinstance(value, str):
+        if value.lower() not in ("true", "false"):
+            raise ValueError(f"{name}={value!r}: expected true or false")
+        return value.lower() == "true"
+    return bool(value)
+
+
 def read_float(props, name, default, minimum=None, strict=False):
     value = float(props.get(name, default))
     if not math.isfinite(value):
@@ -194,3 +204,30 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
 
     def to_string(self):
         return f"{type(self).__name__}[max_depth={self.max_depth}, component={self.component}]"
+
+
+class FarGatherIntegrator(TwoPassIntegrator):
+    """An integrator whose gather rays longer than ``r_thresh`` read a radiosity prepass (GSII,
+    Zimmerman & Shirley §2.5): reads ``r_thresh`` / ``r_thresh_rel`` and the prepass's budget
+    (``max_patches``, ``particles_per_patch``, ``elements_per_patch``, ``vl_threshold``) with the
+    subclass's defaults, and resolves ``r_thresh`` for a scene."""
+
+    #: defaults of (max_patches, particles_per_patch, elements_per_patch)
+    RADIOSITY_DEFAULTS = (1024, 256, 16)
+
+    def _read_far_gather_props(self, props):
+        self.r_thresh_rel = read_float(props, "r_thresh_rel", 0.1, minimum=0.0)
+        self.r_thresh_abs = read_float(props, "r_thresh", -1.0) if "r_thresh" in props else None
+        if self.r_thresh_abs is not None and self.r_thresh_abs < 0:
+            raise ValueError(f"r_thresh={self.r_thresh_abs}: must be >= 0")
+        patches, particles, elements = self.RADIOSITY_DEFAULTS
+        self.max_patches = read_int(props, "max_patches", patches, minimum=1)
+        self.particles_per_patch = read_int(props, "particles_per_patch", particles, minimum=1)
+        self.elements_per_patch = read_int(props, "elements_per_patch", elements, minimum=1)
+        self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
+
+    def r_thresh(self, scene) -> float:
+        """``r_thresh``, else ``r_thresh_rel`` × the scene's bounding-box diagonal."""
+        if self.r_thresh_abs is not None:
+            return self.r_thresh_abs
+        return self.r_thresh_rel * float(dr.norm(scene.bbox().extents()))

@@ -13,7 +13,7 @@ import numpy as np
 from ..prepass.radiosity import receiving_elements, solve_radiosity
 from ..scene.patches import build_patches
 from ..scenefile import SceneFileError, load_scene
-from .base import TwoPassIntegrator, read_choice, read_float, read_int
+from .base import FarGatherIntegrator, read_choice
 from .pathtrace import (by_component, emission_mis, emitter_sample_mis, first_nondelta_hit,
                         russian_roulette)
 
@@ -24,7 +24,7 @@ MIN_PARTICLES = 1 << 16
 
 
 
-class RadiosityGatherIntegrator(TwoPassIntegrator):
+class RadiosityGatherIntegrator(FarGatherIntegrator):
     r"""
     .. _integrator-radiosity_gather:
 
@@ -96,14 +96,7 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
     """
 
     def _read_props(self, props):
-        self.r_thresh_rel = read_float(props, "r_thresh_rel", 0.1, minimum=0.0)
-        self.r_thresh_abs = read_float(props, "r_thresh", -1.0) if "r_thresh" in props else None
-        if self.r_thresh_abs is not None and self.r_thresh_abs < 0:
-            raise ValueError(f"r_thresh={self.r_thresh_abs}: must be >= 0")
-        self.max_patches = read_int(props, "max_patches", 1024, minimum=1)
-        self.particles_per_patch = read_int(props, "particles_per_patch", 256, minimum=1)
-        self.elements_per_patch = read_int(props, "elements_per_patch", 16, minimum=1)
-        self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
+        self._read_far_gather_props(props)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.prepass_scene_path = props.get("prepass_scene", "")
         if self.prepass_scene_path and not os.path.isfile(self.prepass_scene_path):
@@ -155,11 +148,6 @@ class RadiosityGatherIntegrator(TwoPassIntegrator):
                 "patches": int(solution.patches.count),
                 "elements": int(solution.elements.count) if solution.elements is not None else 0,
                 "virtual_luminaires": self.vl_count, "cache_bytes": int(solution.nbytes)}
-
-    def r_thresh(self, scene) -> float:
-        if self.r_thresh_abs is not None:
-            return self.r_thresh_abs
-        return self.r_thresh_rel * float(dr.norm(scene.bbox().extents()))
 
     # -- gather -----------------------------------------------------------------------------
     def far_reflected(self, ray, si, gather_ray, r_thresh):

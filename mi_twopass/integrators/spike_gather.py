@@ -12,21 +12,12 @@ from ..prepass.radiosity import receiving_elements, solve_radiosity
 from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
-from .base import TwoPassIntegrator, read_choice, read_float, read_int
+from .base import FarGatherIntegrator, read_bool, read_choice, read_float, read_int
 from .pathtrace import by_component, first_nondelta_hit, mis_weight, russian_roulette
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
 
 _TINY = 1e-30
-
-
-def read_bool(props, name, default):
-    value = props.get(name, default)
-    if isinstance(value, str):
-        if value.lower() not in ("true", "false"):
-            raise ValueError(f"{name}={value!r}: expected true or false")
-        return value.lower() == "true"
-    return bool(value)
 
 
 def colour_ramp(t):
@@ -39,7 +30,7 @@ def colour_ramp(t):
     return mi.Spectrum(ch(3.0), ch(2.0), ch(1.0))
 
 
-class SpikeGatherIntegrator(TwoPassIntegrator):
+class SpikeGatherIntegrator(FarGatherIntegrator):
     r"""
     .. _integrator-spike_gather:
 
@@ -229,6 +220,8 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
          the radiosity solution B/π there (the paper's Fig. 7).
     """
 
+    RADIOSITY_DEFAULTS = (4096, 64, 4)
+
     def _read_props(self, props):
         grid_res = int(props.get("grid_res", 32))
         if grid_res <= 0:
@@ -257,14 +250,7 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
         self.defensive = read_float(props, "defensive", 0.1, minimum=0.0)
         if self.defensive >= 1.0:
             raise ValueError(f"defensive={self.defensive}: must be < 1")
-        self.r_thresh_rel = read_float(props, "r_thresh_rel", 0.1, minimum=0.0)
-        self.r_thresh_abs = read_float(props, "r_thresh", -1.0) if "r_thresh" in props else None
-        if self.r_thresh_abs is not None and self.r_thresh_abs < 0:
-            raise ValueError(f"r_thresh={self.r_thresh_abs}: must be >= 0")
-        self.max_patches = read_int(props, "max_patches", 4096, minimum=1)
-        self.particles_per_patch = read_int(props, "particles_per_patch", 64, minimum=1)
-        self.elements_per_patch = read_int(props, "elements_per_patch", 4, minimum=1)
-        self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
+        self._read_far_gather_props(props)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
 
     def settings(self):
@@ -313,11 +299,6 @@ class SpikeGatherIntegrator(TwoPassIntegrator):
             grid_bytes=int(pre.grid.nbytes), radiosity_bytes=int(pre.solution.nbytes),
             cache_bytes=int(pre.nbytes))
         return st
-
-    def r_thresh(self, scene) -> float:
-        if self.r_thresh_abs is not None:
-            return self.r_thresh_abs
-        return self.r_thresh_rel * float(dr.norm(scene.bbox().extents()))
 
     # -- render -----------------------------------------------------------------------------
     def sample(self, scene, sampler, ray, medium=None, active=True):
