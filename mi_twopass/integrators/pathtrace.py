@@ -12,6 +12,15 @@ import drjit as dr
 import mitsuba as mi
 
 
+def path_start(ray):
+    """The loop state of a path at its camera ray, in the order the gather loops unpack it:
+    ``(ray, L, β, η, depth, non-delta vertices so far, previous interaction, its BSDF pdf,
+    whether its BSDF sample was delta)``; the camera counts as a delta vertex (emission seen
+    directly gets MIS weight 1)."""
+    return (mi.Ray3f(ray), mi.Spectrum(0.0), mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0),
+            mi.UInt32(0), dr.zeros(mi.SurfaceInteraction3f), mi.Float(1.0), mi.Bool(True))
+
+
 def mis_weight(pdf_a, pdf_b):
     """Power heuristic (β = 2): w_a = p_a² / (p_a² + p_b²); 0 where it is not finite
     (both pdfs 0, or an infinite pdf at a grazing or coincident sample), as Mitsuba's own."""
@@ -96,5 +105,5 @@ def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
     return si, ray, beta, Le, found
 
 
-__all__ = ["first_nondelta_hit", "mis_weight", "emission_mis", "emitter_sample_mis", "by_component",
+__all__ = ["first_nondelta_hit", "path_start", "mis_weight", "emission_mis", "emitter_sample_mis", "by_component",
            "russian_roulette"]

@@ -15,7 +15,7 @@ from ..scene.patches import build_patches
 from ..scenefile import SceneFileError, load_scene
 from .base import FarGatherIntegrator, read_choice
 from .pathtrace import (by_component, emission_mis, emitter_sample_mis, first_nondelta_hit,
-                        russian_roulette)
+                        path_start, russian_roulette)
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 
@@ -209,15 +209,9 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         want_indirect = self.want_indirect
         ctx = mi.BSDFContext()
 
-        ray = mi.Ray3f(ray)
-        L = mi.Spectrum(0.0)
-        beta = mi.Spectrum(1.0)
-        eta = mi.Float(1.0)
-        depth = mi.UInt32(0)
-        n_nondelta = mi.UInt32(0)  # non-delta vertices before the current hit
-        prev_si = dr.zeros(mi.SurfaceInteraction3f)
-        prev_bsdf_pdf = mi.Float(1.0)
-        prev_bsdf_delta = mi.Bool(True)
+        # n_nondelta: non-delta vertices before the current hit
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
+            path_start(ray)
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)
         active = mi.Bool(active)

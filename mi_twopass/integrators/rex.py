@@ -13,7 +13,8 @@ import mitsuba as mi
 from .. import units
 from ..prepass.rex import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
-from .pathtrace import by_component, emission_mis, emitter_sample_mis, russian_roulette
+from .pathtrace import (by_component, emission_mis, emitter_sample_mis, path_start,
+                        russian_roulette)
 
 DEBUG_MODES = ("none", "leaves", "edges", "buckets")
 DIRECT_MODES = ("rex", "shadow")
@@ -221,15 +222,9 @@ class RexIntegrator(TwoPassIntegrator):
         want_indirect = self.want_indirect
         ctx = mi.BSDFContext()
 
-        ray = mi.Ray3f(ray)
-        L = mi.Spectrum(0.0)
-        beta = mi.Spectrum(1.0)
-        eta = mi.Float(1.0)
-        depth = mi.UInt32(0)
-        n_nondelta = mi.UInt32(0)  # non-delta vertices before the current hit
-        prev_si = dr.zeros(mi.SurfaceInteraction3f)
-        prev_bsdf_pdf = mi.Float(1.0)
-        prev_bsdf_delta = mi.Bool(True)
+        # n_nondelta: non-delta vertices before the current hit
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
+            path_start(ray)
         after_rex = mi.Bool(False)  # the MIS ray of a rex vertex: only emitters count
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)

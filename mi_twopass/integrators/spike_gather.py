@@ -13,7 +13,8 @@ from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
 from .base import FarGatherIntegrator, read_bool, read_choice, read_float, read_int
-from .pathtrace import by_component, first_nondelta_hit, mis_weight, russian_roulette
+from .pathtrace import (by_component, first_nondelta_hit, mis_weight, path_start,
+                        russian_roulette)
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
 
@@ -337,15 +338,9 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         n_emitters = len(scene.emitters())
         inv_n_emitters = 1.0 / max(n_emitters, 1)
 
-        ray = mi.Ray3f(ray)
-        L = mi.Spectrum(0.0)
-        beta = mi.Spectrum(1.0)
-        eta = mi.Float(1.0)
-        depth = mi.UInt32(0)
-        n_nondelta = mi.UInt32(0)  # non-delta vertices before the current hit
-        prev_si = dr.zeros(mi.SurfaceInteraction3f)
-        prev_bsdf_pdf = mi.Float(1.0)
-        prev_bsdf_delta = mi.Bool(True)
+        # n_nondelta: non-delta vertices before the current hit
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
+            path_start(ray)
         prev_list_a = mi.UInt32(INVALID)  # lists used at the previous vertex (INVALID: none)
         prev_list_b = mi.UInt32(INVALID)
         prev_scale_a = mi.Float(0.0)  # m_c/W_c there: P(i) = Σ_c scale_c·g_ci·L'_i
