@@ -226,8 +226,24 @@ class FarGatherIntegrator(TwoPassIntegrator):
         self.elements_per_patch = read_int(props, "elements_per_patch", elements, minimum=1)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
 
+    @property
+    def far_gather_exact(self) -> bool:
+        """The radiosity solution holds light of every path length (particles are traced until
+        they are absorbed), so reading it is right only for unbounded paths. With a finite
+        ``max_depth`` there is no far gather and no virtual luminaire: the integrator path
+        traces (with its own direct-light strategy), as ``path`` with that ``max_depth``."""
+        return self.max_depth < 0
+
+    @property
+    def vl_threshold_used(self) -> float:
+        """``vl_threshold``, or ∞ (no virtual luminaires) where the far gather is off."""
+        return self.vl_threshold if self.far_gather_exact else math.inf
+
     def r_thresh(self, scene) -> float:
-        """``r_thresh``, else ``r_thresh_rel`` × the scene's bounding-box diagonal."""
+        """``r_thresh``, else ``r_thresh_rel`` × the scene's bounding-box diagonal; ∞ (every
+        gather ray is traced on) with a finite ``max_depth`` (see :attr:`far_gather_exact`)."""
+        if not self.far_gather_exact:
+            return math.inf
         if self.r_thresh_abs is not None:
             return self.r_thresh_abs
         return self.r_thresh_rel * float(dr.norm(scene.bbox().extents()))

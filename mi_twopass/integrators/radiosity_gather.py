@@ -4,6 +4,7 @@ Zimmerman & Shirley 1995 (shared/papers/000_*), §2.3 (implicit gather) and §2.
 """
 from __future__ import annotations
 
+import math
 import os
 
 import drjit as dr
@@ -104,7 +105,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
 
     def settings(self):
         return (self.max_patches, self.particles_per_patch, self.elements_per_patch,
-                self.vl_threshold, self.prepass_scene_path)
+                self.vl_threshold_used, self.prepass_scene_path)
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
@@ -126,7 +127,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         patches = solution.patches
         Br = np.asarray(solution.B_reflected).mean(axis=1)
         power = Br * np.asarray(patches.area)
-        limit = self.vl_threshold * (Br.max() if Br.size else 0.0)
+        limit = self.vl_threshold_used * Br.max() if Br.size and self.far_gather_exact \
+            else math.inf
         chosen = np.nonzero((Br >= limit) & (power > 0) & (Br > 0))[0].astype(np.uint32)
         self.vl_count = int(chosen.size)
         is_vl = np.zeros(patches.count + 1, dtype=bool)
@@ -160,8 +162,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         :func:`mi_twopass.prepass.radiosity.solve_radiosity` for why a patch mean is biased."""
         sol = self.structure
         far = gather_ray & si.is_valid() & (si.t >= r_thresh)
+        far &= sol.cached_at(si, far)
         pid = sol.patches.lookup(si, far)
-        far &= sol.patches.gather("is_diffuse", pid, far)
         if self.prepass_scene_path:
             si_massing = self.gather_scene.ray_intersect(ray, far)
             pid = sol.patches.lookup(si_massing, far & si_massing.is_valid())
@@ -182,8 +184,11 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         dist2 = dr.squared_norm(d)
         dist = dr.sqrt(dist2)
         wo_world = d / dr.maximum(dist, 1e-30)
-        cos_y = dr.abs(dr.dot(n, -wo_world))  # patches are two-sided only if the surface is
-        ok = active & (dist >= r_thresh) & (pdf_area > 0) & (dist2 > 0)
+        # ``n`` is the normal of the patch's own side: a patch emits B_r/π into that side only
+        # (the back of a two-sided surface is its own patch); a point behind it gets nothing,
+        # however unoccluded the shadow ray (it ends on the surface from behind)
+        cos_y = dr.dot(n, -wo_world)
+        ok = active & (dist >= r_thresh) & (pdf_area > 0) & (dist2 > 0) & (cos_y > 0)
         shadow = si.spawn_ray_to(p)
         visible = ok & ~scene.ray_test(shadow, ok)
         wo = si.to_local(wo_world)

@@ -258,7 +258,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         return (self.grid_res, self.e_high_rel, self.e_low_rel, self.e_high, self.e_low,
                 self.influence_rel, self.influence, self.visibility_max_rays, self.camera_res,
                 self.cell_points, self.max_patches, self.particles_per_patch,
-                self.elements_per_patch, self.vl_threshold,
+                self.elements_per_patch, self.vl_threshold_used,
                 self.gather_cells, self.r_thresh_rel, self.r_thresh_abs)
 
     def spike_settings(self, scene) -> SpikeSettings:
@@ -281,7 +281,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         rounds = self.visibility_max_rays // 10
         with progress_bar(total=rounds, desc="spike lists", unit="round") as bar:
             pre = build_spike_prepass(scene, self.spike_settings(scene), solution=solution,
-                                      vl_threshold=self.vl_threshold,
+                                      vl_threshold=self.vl_threshold_used,
                                       e_high_rel=self.e_high_rel, e_low_rel=self.e_low_rel,
                                       E_high=self.e_high, E_low=self.e_low, seed=seed,
                                       progress=bar)
@@ -392,8 +392,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
 
             # -- Far gather ray: B_r/π of the patch hit ends the path, unless it is a VL of the
             #    list used (then it was sampled explicitly).
-            far = gather_ray & si.is_valid() & (si.t >= r_thresh) \
-                & sol.patches.is_diffuse_at(si, active)
+            far = gather_ray & si.is_valid() & (si.t >= r_thresh) & sol.cached_at(si, active)
             if want_indirect:
                 pid = sol.patches.lookup(si, far)
                 vl_sid = src.source_of_patch(pid, far & from_list)

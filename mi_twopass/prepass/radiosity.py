@@ -114,6 +114,16 @@ class RadiositySolution:
         """B_reflected/π of patches by id (0 for the invalid id ``patches.count``)."""
         return dr.gather(mi.Color3f, self._L_reflected, patch_ids, active)
 
+    def cached_at(self, si, active=True):
+        """``mi.Bool``: the solution represents the radiance leaving ``si`` towards its ray —
+        a purely diffuse patch (and element, with elements) on the side hit, not cut by
+        geometry (:func:`mi_twopass.scene.patches.build_patches`). Elsewhere a gather traces
+        on."""
+        cached = self.patches.is_diffuse_at(si, active)
+        if self.elements is not None:
+            cached &= self.elements.is_diffuse_at(si, active)
+        return cached
+
     def reflected_radiance(self, si, active=True):
         """B_reflected/π at ``si`` (``mi.Color3f``), 0 where there is no patch.
 
@@ -299,9 +309,10 @@ def _mix(seed: int) -> int:
     return z ^ (z >> 31)
 
 
-#: property / exposure samples per receiving element (a patch keeps SAMPLES_PER_PATCH = 16; its
-#: 16 elements at the default ratio together get 64)
-ELEMENT_SAMPLES = 4
+#: property / exposure / split-probe samples per receiving element, as many as a patch's: with 4,
+#: an element cut by a wall had all its points on one side one time in eight (a 50/50 cut), and
+#: its light leaked to the other side (tests/integrators/test_far_gather_correctness.py)
+ELEMENT_SAMPLES = 16
 
 
 def receiving_elements(scene, max_patches: int, elements_per_patch: int, seed: int = 0):

@@ -457,7 +457,7 @@ def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_
         N = patches.count
         Br = _lum(solution.B_reflected)
         power = Br * np.asarray(patches.area)
-        limit = vl_threshold * (Br.max() if Br.size else 0.0)
+        limit = vl_threshold * Br.max() if Br.size and math.isfinite(vl_threshold) else math.inf
         vl = np.nonzero((Br >= limit) & (power > 0) & (Br > 0) & patches.is_diffuse)[0]
         tri_p = np.asarray(patches.tri_patch, dtype=np.int64)
         tv = np.asarray(patches.tri_vertices, dtype=np.float64)

@@ -93,13 +93,28 @@ class _ShapeGeom:
     normal_matrix: np.ndarray | None = None  # 3x3 inverse transpose
 
 
+def is_pure_diffuse(flags) -> bool:
+    """True for BSDF flags of purely diffuse reflection (one- or two-sided Lambertian, also a
+    blend or bump map of such): the only surfaces whose outgoing radiance a radiosity value
+    B/π represents. Any glossy, delta, transmissive or null lobe (plastic, blendbsdf with a
+    conductor, principled, mask, thindielectric) makes the radiance view-dependent or lets
+    light through: such surfaces get no radiosity and the integrators trace paths on there."""
+    flags = int(flags)
+    return bool(flags & int(mi.BSDFFlags.DiffuseReflection)) and not (flags & _NOT_PURE_DIFFUSE)
+
+
+_NOT_PURE_DIFFUSE = int(mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta
+                        | mi.BSDFFlags.DiffuseTransmission | mi.BSDFFlags.Null)
+
+
 def _bsdf_sides(shape):
-    """(diffuse, two_sided) of a shape's BSDF from its flags."""
+    """(diffuse, two_sided) of a shape's BSDF from its flags: ``diffuse`` only for purely
+    diffuse reflection (:func:`is_pure_diffuse`)."""
     bsdf = shape.bsdf()
     if bsdf is None:
         return False, False
     flags = int(bsdf.flags())
-    diffuse = bool(flags & int(mi.BSDFFlags.DiffuseReflection))
+    diffuse = is_pure_diffuse(flags)
     two_sided = diffuse and bool(flags & int(mi.BSDFFlags.BackSide))
     return diffuse, two_sided
 
@@ -777,8 +792,50 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     for part in parts:
         g, K, b0 = part["geom"], part["K"], part["base"]
         is_diffuse[b0:b0 + K * _sides(g)] = g.diffuse
+    split, split_rays = _probe_split(scene, P, side_normal, patch_of, enclosed, delta, N)
+    is_diffuse &= ~split
     albedo = np.where(is_diffuse[:, None], np.maximum(albedo, 0.0), 0.0)
-    return albedo, is_diffuse, np.maximum(Le, 0.0), exposure, 3 * n
+    return albedo, is_diffuse, np.maximum(Le, 0.0), exposure, 3 * n + split_rays
+
+
+#: lift of the split probe's segment above the patch, as a fraction of the segment's length
+#: (clears the sag of a chord over a gently curved patch; a wall that cuts the patch is taller)
+SPLIT_LIFT = 0.25
+
+
+def _probe_split(scene, P, side_normal, patch_of, enclosed, delta, N):
+    """Boolean per patch: geometry cuts the patch into parts that cannot see each other.
+
+    A patch straddling a wall (a floor running under a partition, a wall behind a lamp shade
+    that touches it) collects particles on one side and would show that light on the other:
+    the classic radiosity light leak. Consecutive open sample points of a patch are joined by
+    a segment lifted off the surface (by ``delta`` + ``SPLIT_LIFT`` × its length, along each
+    point's side normal); an occluded segment marks the patch as split. A split patch is not
+    cached (``is_diffuse`` false): gather rays landing there are traced on, which is unbiased.
+    Returns ``(split, rays)``."""
+    split = np.zeros(N, dtype=bool)
+    if P.shape[0] < 2:
+        return split, 0
+    same = (patch_of[1:] == patch_of[:-1]) & ~enclosed[1:] & ~enclosed[:-1]
+    j = np.nonzero(same)[0]
+    if j.size == 0:
+        return split, 0
+    a, b = P[j], P[j + 1]
+    lift = delta + SPLIT_LIFT * np.linalg.norm(b - a, axis=1, keepdims=True)
+    a = a + side_normal[j] * lift
+    b = b + side_normal[j + 1] * lift
+
+    def vec(x, cls):
+        return cls(*(mi.Float(np.ascontiguousarray(x[:, i], dtype=np.float32)) for i in range(3)))
+
+    d = b - a
+    dist = np.linalg.norm(d, axis=1)
+    ok = dist > 0
+    ray = mi.Ray3f(vec(a, mi.Point3f), vec(d / np.where(ok, dist, 1.0)[:, None], mi.Vector3f))
+    ray.maxt = mi.Float(np.where(ok, dist, 0.0).astype(np.float32))
+    blocked = np.array(scene.ray_test(ray, mi.Bool(ok)), dtype=bool) & ok
+    np.logical_or.at(split, patch_of[j], blocked)
+    return split, int(j.size)
 
 
 def _probe_enclosed(scene, P, n, delta, rng):
