@@ -1,16 +1,22 @@
-"""Command line: ``python -m mi_twopass render | compare | demo``.
+"""Command line: ``python -m mi_twopass render | compare | check | demo``.
 
     python -m mi_twopass render SCENE.xml -o out.exr [--integrator T] [-D key=value] [--spp N]
                                 [--variant V] [--seed S] [--reference]
     python -m mi_twopass compare SCENE.xml --integrators path,radiosity_gather --budget 10
+    python -m mi_twopass check SCENE.xml [--integrators a,b] [--spp 64] [--res PX]
+                               [--ref-spp N] [-D key=value] [--json PATH]
     python -m mi_twopass demo
+
+A mistake (a missing or malformed scene, an unknown integrator or parameter, a bad option)
+prints one line ``error: ...`` and exits with status 2 (``MI_TWOPASS_TRACEBACK=1`` shows the
+traceback instead).
 """
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
+import re
 import sys
 import time
 
@@ -19,6 +25,14 @@ import time
 DEMO_INTEGRATOR = "radiosity_gather"
 DEMO_SCENE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                           "scenes_xml", "cornell_box.xml")
+#: lanes (pixels × spp) per render pass of ``render``, to bound memory
+LANES_PER_PASS = 1 << 22
+#: seed step between passes (the samplers' seed; a mi_twopass prepass keeps the render's seed)
+PASS_SEED_STRIDE = 7919
+
+
+class CLIError(Exception):
+    """A mistake in the command line or its inputs: printed as one ``error:`` line."""
 
 
 def _add_scene_args(p):
@@ -36,7 +50,8 @@ def build_parser():
 
     r = sub.add_parser("render", help="render a scene to EXR + tone-mapped PNG")
     _add_scene_args(r)
-    r.add_argument("-o", "--output", required=True, help="output .exr (a .png is written beside)")
+    r.add_argument("-o", "--output", required=True,
+                   help="output .exr (the tone-mapped .png is written beside it)")
     r.add_argument("--integrator", default=None,
                    help="integrator spec NAME[:key=value...] (default: the scene's own)")
     r.add_argument("--spp", type=int, default=0, help="samples per pixel (default: the scene's)")
@@ -53,6 +68,19 @@ def build_parser():
     c.add_argument("--ref-spp", type=int, default=None)
     c.add_argument("-o", "--output-dir", default="out/compare")
 
+    k = sub.add_parser("check", help="each integrator against the path reference: mean ratio "
+                                     "and 8x8-block relMSE, OUT of bounds marked")
+    _add_scene_args(k)
+    k.add_argument("--integrators", default=None,
+                   help="comma-separated integrator specs NAME[:key=value...] (default: "
+                        "radiosity_gather,spike_gather,rex,radiance_cache)")
+    k.add_argument("--spp", type=int, default=None, help="samples per pixel (default 64)")
+    k.add_argument("--res", type=int, default=None, metavar="PX",
+                   help="the film's longer side in pixels, aspect ratio kept (for scenes "
+                        "without a $res parameter)")
+    k.add_argument("--ref-spp", type=int, default=None, help="reference spp (default 1024)")
+    k.add_argument("--json", default=None, metavar="PATH", help="also write the report as JSON")
+
     d = sub.add_parser("demo", help="render the demo scene and print time and relMSE")
     d.add_argument("--integrator", default=DEMO_INTEGRATOR)
     d.add_argument("--spp", type=int, default=64)
@@ -67,7 +95,7 @@ def _setup(variant):
 
     if variant:
         if variant not in mi.variants():
-            raise SystemExit(f"error: unknown variant {variant!r}; available: {mi.variants()}")
+            raise CLIError(f"--variant {variant}: unknown; available: {', '.join(mi.variants())}")
         mi.set_variant(variant)
     return mi
 
@@ -78,59 +106,142 @@ def _ref_spp(args):
     return args.ref_spp or DEFAULT_REFERENCE_SPP
 
 
+def make_integrator(spec: str, option: str = "--integrator"):
+    """:func:`~mi_twopass.evaluation.harness.make_integrator` with one-line errors
+    (:class:`CLIError`) for an unknown name or a parameter the integrator refuses."""
+    from .evaluation.harness import make_integrator as _make
+    from .integrators import PLUGINS
+    from .scenefile import mitsuba_error_message
+
+    try:
+        return _make(spec)
+    except (RuntimeError, ValueError) as e:
+        msg = mitsuba_error_message(e)
+        missing = re.search(r'Plugin "([^"]+)" not found', msg)
+        if missing:
+            msg = (f"no integrator named {missing.group(1)!r} (this suite's: "
+                   f"{', '.join(sorted(PLUGINS))}; or one of Mitsuba's, such as path)")
+        raise CLIError(f"{option} {spec}: {msg}") from e
+
+
+def _check_output(output) -> str:
+    """The PNG path for EXR ``output``, after checking that ``output`` ends in .exr and that
+    its folder exists or can be made (before anything is rendered)."""
+    stem, ext = os.path.splitext(output)
+    if ext.lower() != ".exr":
+        raise CLIError(f"-o {output}: the output must be an .exr file (the tone-mapped .png "
+                       "is written beside it, with the same name)")
+    if os.path.isdir(output):
+        raise CLIError(f"-o {output}: is a folder")
+    _make_folder(output, "-o")
+    return stem + ".png"
+
+
+def _make_folder(path, option) -> None:
+    """Create the folder of output ``path`` (a :class:`CLIError` naming the regular file in the
+    way, or the OS's reason)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        part = folder
+        while part and not os.path.exists(part) and os.path.dirname(part) != part:
+            part = os.path.dirname(part)
+        if os.path.exists(part) and not os.path.isdir(part):
+            raise CLIError(f"{option} {path}: {part} is a file, not a folder") from e
+        raise CLIError(f"{option} {path}: cannot create the folder {folder}: "
+                       f"{e.strerror or e}") from e
+
+
+def pass_sizes(spp: int, pixels: int, lanes: int | None = None) -> list:
+    """spp of each render pass so that a pass traces at most ``lanes`` (default
+    :data:`LANES_PER_PASS`) pixel samples; they add up to ``spp``."""
+    lanes = LANES_PER_PASS if lanes is None else lanes
+    per_pass = max(1, min(spp, lanes // max(1, pixels)))
+    return [min(per_pass, spp - done) for done in range(0, spp, per_pass)]
+
+
+def merge_pass_stats(total: dict, stats: dict, structural) -> dict:
+    """Add one pass's ``stats`` into ``total``: per-render counts and seconds add up; the
+    keys in ``structural`` (the prepass's structure: patch counts, bytes, ...) and
+    non-numbers keep the first pass's value."""
+    for key, v in stats.items():
+        if key in structural or isinstance(v, bool) or not isinstance(v, (int, float)):
+            total.setdefault(key, v)
+        else:
+            total[key] = total.get(key, 0) + v
+    return total
+
+
 def render_command(scene_path, output, integrator_spec=None, spp=0, defines=(), seed=0,
                    reference=False, ref_spp=None, exposure=0.0, variant=None, out=print):
-    """Render, write EXR + PNG, print time, stats and (optionally) error. Returns a dict."""
+    """Render, write EXR + PNG, print time, stats and (optionally) error. Returns a dict with
+    the image, seconds, summed stats, ``passes`` and ``prepass_builds`` (passes that ran a
+    prepass: 1 for a mi_twopass integrator, whatever the number of passes)."""
     mi = _setup(variant)
     import drjit as dr
     import numpy as np
 
+    from .evaluation.check import refusal_of
     from .evaluation.images import write_exr, write_png
-    from .evaluation.harness import make_integrator
+    from .integrators.base import TwoPassIntegrator
     from .progress import progress
     from .scenefile import load_scene, parse_defines
 
+    if spp < 0:
+        raise CLIError(f"--spp {spp}: must be >= 1 (or 0 for the scene's own sample count)")
+    png = _check_output(output)
     params = parse_defines(defines)
     scene = load_scene(scene_path, **params)
+    if not len(scene.sensors()):
+        raise CLIError(f"{scene_path}: the scene has no sensor")
     sensor = scene.sensors()[0]
     spp = spp or int(sensor.sampler().sample_count())
     integrator = make_integrator(integrator_spec) if integrator_spec else scene.integrator()
+    two_pass = isinstance(integrator, TwoPassIntegrator)
     w, h = (int(v) for v in sensor.film().crop_size())
-    per_pass = max(1, min(spp, (1 << 22) // max(1, w * h)))
-    passes = math.ceil(spp / per_pass)
+    sizes = pass_sizes(spp, w * h)
     t0 = time.perf_counter()
     acc = np.zeros((h, w, 3))
-    prepass_seconds = 0.0
     stats = {}
+    prepass_builds = 0
+    name = integrator_spec or type(integrator).__name__
     with progress(total=spp, desc="render", unit="spp") as bar:
-        done = 0
-        for k in range(passes):
-            n = min(per_pass, spp - done)
-            img = mi.render(scene, integrator=integrator, spp=n, seed=seed + 7919 * k)
+        for k, n in enumerate(sizes):
+            # a mi_twopass integrator keeps the render's seed (hence its prepass) and offsets
+            # its samplers; any other integrator gets the pass's seed
+            if two_pass:
+                integrator.sample_seed_offset = PASS_SEED_STRIDE * k
+            try:
+                img = mi.render(scene, integrator=integrator, spp=n,
+                                seed=seed if two_pass else seed + PASS_SEED_STRIDE * k)
+            except (ValueError, NotImplementedError, RuntimeError) as e:
+                cause = refusal_of(e)
+                if cause is None:
+                    raise
+                raise CLIError(f"{name} refused {scene_path}: {cause}") from e
+            finally:
+                if two_pass:
+                    integrator.sample_seed_offset = 0
             acc += np.asarray(img, dtype=np.float64)[..., :3] * n
             dr.sync_thread()
             s = dict(getattr(integrator, "stats", {}) or {})
-            for key, v in s.items():
-                if key in ("prepass_seconds", "prepass_rays", "cache_bytes") or not isinstance(v, (int, float)):
-                    stats.setdefault(key, v)
-                else:
-                    stats[key] = stats.get(key, 0) + v
-            prepass_seconds += s.get("prepass_seconds", 0.0)
-            done += n
+            prepass_builds += int(s.get("prepass_seconds", 0.0) > 0.0)
+            merge_pass_stats(stats, s, getattr(integrator, "structure_stat_keys", ()))
             bar.update(n)
     image = (acc / spp).astype(np.float32)
     seconds = time.perf_counter() - t0
     if not np.all(np.isfinite(image)):
         out(f"warning: {int(np.sum(~np.isfinite(image)))} non-finite values in the image")
     write_exr(output, image)
-    png = os.path.splitext(output)[0] + ".png"
     write_png(png, image, exposure)
-    name = integrator_spec or type(integrator).__name__
-    out(f"rendered {os.path.basename(scene_path)} with {name} at {w}x{h}, {spp} spp "
+    passes = f" in {len(sizes)} passes" if len(sizes) > 1 else ""
+    out(f"rendered {os.path.basename(scene_path)} with {name} at {w}x{h}, {spp} spp{passes} "
         f"in {seconds:.2f} s → {output}, {png}")
     if stats:
         out("stats: " + json.dumps(stats, default=str))
-    result = {"seconds": seconds, "image": image, "stats": stats, "exr": output, "png": png}
+    result = {"seconds": seconds, "image": image, "stats": stats, "exr": output, "png": png,
+              "passes": len(sizes), "prepass_builds": prepass_builds}
     if reference:
         from .evaluation.metrics import all_metrics
         from .evaluation.reference import reference_image
@@ -149,6 +260,16 @@ def _ref_spp_default():
     return DEFAULT_REFERENCE_SPP
 
 
+def _specs(text, option) -> list:
+    """Comma-separated integrator specs, each checked to make an integrator."""
+    specs = [s.strip() for s in (text or "").split(",") if s.strip()]
+    if not specs:
+        raise CLIError(f"{option} is empty")
+    for spec in specs:
+        make_integrator(spec, option)
+    return specs
+
+
 def compare_command(args, out=print):
     _setup(args.variant)
     from .evaluation import harness
@@ -157,11 +278,9 @@ def compare_command(args, out=print):
     if not os.path.isfile(args.scene):
         raise SceneFileError(f"scene file not found: {args.scene}")
     if args.budget <= 0:
-        raise SystemExit("error: --budget must be > 0 seconds")
+        raise CLIError(f"--budget {args.budget}: must be > 0 seconds")
     params = parse_defines(args.defines)
-    specs = [s.strip() for s in args.integrators.split(",") if s.strip()]
-    if not specs:
-        raise SystemExit("error: --integrators is empty")
+    specs = _specs(args.integrators, "--integrators")
     if not any(s.split(":")[0] == "path" for s in specs):
         specs.insert(0, "path")  # the baseline is always measured in the same run
     out(f"compare {args.scene} {params} budget {args.budget} s per integrator")
@@ -179,6 +298,33 @@ def compare_command(args, out=print):
     return curves
 
 
+def check_command(args, out=print):
+    """``check``: the table of :mod:`mi_twopass.evaluation.check` (exit status 0 whatever
+    the rows say: it is a report)."""
+    _setup(args.variant)
+    from .evaluation import check
+    from .scenefile import SceneFileError, parse_defines
+
+    if not os.path.isfile(args.scene):
+        raise SceneFileError(f"scene file not found: {args.scene}")
+    spp = check.DEFAULT_SPP if args.spp is None else args.spp
+    ref_spp = check.DEFAULT_REF_SPP if args.ref_spp is None else args.ref_spp
+    for option, value in (("--spp", spp), ("--ref-spp", ref_spp), ("--res", args.res)):
+        if value is not None and value < 1:
+            raise CLIError(f"{option} {value}: must be >= 1")
+    if args.json:
+        _make_folder(args.json, "--json")
+    params = parse_defines(args.defines)
+    specs = _specs(args.integrators or ",".join(check.DEFAULT_INTEGRATORS), "--integrators")
+    result = check.run_check(args.scene, specs, spp=spp, film_res=args.res, ref_spp=ref_spp,
+                             params=params, seed=args.seed)
+    out(check.format_table(result))
+    if args.json:
+        check.write_json(result, args.json)
+        out(f"wrote {args.json}")
+    return result
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
     from .scenefile import SceneFileError
@@ -189,10 +335,14 @@ def main(argv=None):
                            args.seed, args.reference, args.ref_spp, args.exposure, args.variant)
         elif args.command == "compare":
             compare_command(args)
+        elif args.command == "check":
+            check_command(args)
         elif args.command == "demo":
             render_command(DEMO_SCENE, args.output, args.integrator, args.spp, ["res=64"],
                            reference=True, ref_spp=1024)
-    except SceneFileError as e:
-        print(f"error: {e}", file=sys.stderr)
+    except (CLIError, SceneFileError) as e:
+        if os.environ.get("MI_TWOPASS_TRACEBACK"):
+            raise
+        print("error: " + " ".join(str(e).split()), file=sys.stderr)
         return 2
     return 0

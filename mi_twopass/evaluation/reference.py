@@ -1,7 +1,8 @@
 """Reference images: Mitsuba's ``path`` at unbounded depth and high spp, cached on disk.
 
 The cache key is a SHA-256 of the scene file's bytes, the bytes of every file it references
-(``filename="..."``), the parameters, spp, seed, variant and Mitsuba version; the image lives in
+(``filename="..."``), the parameters, the film size override ``film_res`` (when given), spp, seed,
+variant and Mitsuba version; the image lives in
 ``<cache_dir>/<key>.exr`` beside a JSON of what made it. The default cache directory is
 ``.cache/references`` under the current directory, or ``$MI_TWOPASS_CACHE``.
 """
@@ -46,11 +47,15 @@ def scene_digest(scene_path) -> str:
     return h.hexdigest()
 
 
-def reference_key(scene_path, params: dict, spp: int, seed: int = 0) -> str:
+def reference_key(scene_path, params: dict, spp: int, seed: int = 0, film_res=None) -> str:
+    """The cache key of a reference (the module docstring says what it covers); without
+    ``film_res`` it is the key earlier versions gave, so their caches stay valid."""
     h = hashlib.sha256()
     h.update(scene_digest(scene_path).encode())
     h.update(json.dumps(sorted(params.items()), default=str).encode())
     h.update(f"{spp}|{seed}|{mi.variant()}|{mi.__version__}".encode())
+    if film_res is not None:
+        h.update(f"|film_res={int(film_res)}".encode())
     return h.hexdigest()[:24]
 
 
@@ -73,26 +78,32 @@ def render_path(scene, spp: int, seed: int = 0, desc="reference") -> np.ndarray:
 
 
 def reference_image(scene_path, params: dict | None = None, spp: int = DEFAULT_REFERENCE_SPP,
-                    seed: int = 0, cache_dir: str | None = None, verbose: bool = False) -> np.ndarray:
-    """The cached reference for ``scene_path`` with ``params``; rendered on a cache miss."""
+                    seed: int = 0, cache_dir: str | None = None, verbose: bool = False,
+                    film_res: int | None = None) -> np.ndarray:
+    """The cached reference for ``scene_path`` with ``params`` (and the film's longer side set
+    to ``film_res`` pixels, see :func:`~mi_twopass.scenefile.load_scene`); rendered on a cache
+    miss."""
     params = dict(params or {})
     cache_dir = cache_dir or default_cache_dir()
-    key = reference_key(scene_path, params, spp, seed)
+    key = reference_key(scene_path, params, spp, seed, film_res)
     exr = os.path.join(cache_dir, key + ".exr")
     if os.path.isfile(exr):
         return read_exr(exr)
-    scene = load_scene(scene_path, **params)
+    scene = load_scene(scene_path, film_res=film_res, **params)
     t0 = time.perf_counter()
     image = render_path(scene, spp, seed)
     seconds = time.perf_counter() - t0
     if verbose:
-        print(f"reference: {os.path.basename(scene_path)} {params} at {spp} spp in {seconds:.1f} s")
+        res = f" film_res {film_res}" if film_res is not None else ""
+        print(f"reference: {os.path.basename(scene_path)} {params}{res} at {spp} spp in "
+              f"{seconds:.1f} s")
     os.makedirs(cache_dir, exist_ok=True)
     tmp = exr + f".tmp{os.getpid()}.exr"
     write_exr(tmp, image)
     os.replace(tmp, exr)  # never leave a half-written reference behind
     with open(os.path.join(cache_dir, key + ".json"), "w") as f:
-        json.dump({"scene": os.path.abspath(scene_path), "params": params, "spp": spp,
+        json.dump({"scene": os.path.abspath(scene_path), "params": params, "film_res": film_res,
+                   "spp": spp,
                    "seed": seed, "variant": mi.variant(), "mitsuba": mi.__version__,
                    "seconds": seconds}, f, indent=1, default=str)
     dr.sync_thread()

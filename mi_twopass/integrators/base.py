@@ -14,11 +14,13 @@ and Arikan et al.'s Table 1: ``viewing_rays``, ``implicit_rays``, ``explicit_ray
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 #: keys every integrator reports after a render
 STAT_KEYS = (
@@ -37,6 +39,52 @@ COMPONENTS = ("all", "direct", "indirect")
 UNBOUNDED = 0xFFFFFFFF
 
 
+def _show(value) -> str:
+    """A parameter value as an error message shows it (``2.5``, ``1e+12``, ``'abc'``)."""
+    if isinstance(value, float):
+        return format(value, ".6g")
+    if isinstance(value, str):
+        return repr(value)
+    return str(value)
+
+
+def _show_bound(bound) -> str:
+    """``16777216`` → ``2^24``; other bounds as they are."""
+    if isinstance(bound, int) and bound >= 1024 and bound & (bound - 1) == 0:
+        return f"2^{bound.bit_length() - 1}"
+    return _show(bound)
+
+
+def human_bytes(n: float) -> str:
+    """``3.2e9`` → ``"3.2 GB"`` (powers of 1000, as a message for people)."""
+    for unit in ("bytes", "kB", "MB", "GB", "TB"):
+        if abs(n) < 1000 or unit == "TB":
+            return f"{n:.3g} {unit}"
+        n /= 1000.0
+    return f"{n:.3g} TB"  # pragma: no cover
+
+
+def needs_memory(bytes_each: float, what: str):
+    """A ``why`` for the readers' ``maximum``: says what the bound protects, for the value read.
+
+    ``needs_memory(64, "the particle records")`` gives, for 1e12, "the particle records would
+    need 64 TB"."""
+    return lambda value: f"{what} would need {human_bytes(float(value) * bytes_each)}"
+
+
+def _check_range(name, value, minimum, maximum, strict, why, shown=None):
+    """Raise a ValueError naming ``name`` (shown as ``shown``, default the value) when
+    ``value`` is below ``minimum`` (or equal, ``strict``) or above ``maximum``."""
+    shown = _show(value) if shown is None else shown
+    if minimum is not None and (value < minimum or (strict and value == minimum)):
+        cmp = ">" if strict else ">="
+        raise ValueError(f"{name}={shown}: must be {cmp} {_show(minimum)}")
+    if maximum is not None and value > maximum:
+        reason = why(value) if callable(why) else why
+        raise ValueError(f"{name}={shown}: at most {_show_bound(maximum)}"
+                         + (f" ({reason})" if reason else ""))
+
+
 def read_choice(props, name, default, choices):
     """Read a string property and check it is one of ``choices``."""
     value = props.get(name, default)
@@ -45,31 +93,128 @@ def read_choice(props, name, default, choices):
     return value
 
 
-def read_int(props, name, default, minimum=None):
-    value = int(props.get(name, default))
-    if minimum is not None and value < minimum:
-        raise ValueError(f"{name}={value}: must be >= {minimum}")
+def read_int(props, name, default, minimum=None, maximum=None, why=None):
+    """Read an integer property, checked to lie in [``minimum``, ``maximum``].
+
+    Accepts Mitsuba's integer properties, floats with an integral value (``1e6``) and strings of
+    an integer; refuses anything else (``max_depth=2.5: expected an integer``), booleans
+    included. ``maximum`` bounds counts that size memory or time; ``why`` (a string, or a
+    function of the value such as :func:`needs_memory`) says what the bound protects and is
+    part of the message."""
+    raw = props.get(name, default)
+    value = None
+    if isinstance(raw, bool):
+        value = None
+    elif isinstance(raw, int):
+        value = int(raw)
+    elif isinstance(raw, float):
+        if math.isfinite(raw) and raw == int(raw):
+            value = int(raw)
+    elif isinstance(raw, str):
+        try:
+            value = int(raw.strip())
+        except ValueError:
+            value = None
+    if value is None:
+        raise ValueError(f"{name}={_show(raw)}: expected an integer")
+    _check_range(name, value, minimum, maximum, False, why, _show(raw))
     return value
 
 
 def read_bool(props, name, default):
-    """Read a boolean property (a bool, or the strings "true" / "false")."""
+    """Read a boolean property: a bool, or the strings "true" / "false" (any case); anything
+    else (``1``, ``"yes"``) is refused, so that the string "false" never reads as true."""
     value = props.get(name, default)
     if isinstance(value, str):
-        if value.lower() not in ("true", "false"):
+        if value.strip().lower() not in ("true", "false"):
             raise ValueError(f"{name}={value!r}: expected true or false")
-        return value.lower() == "true"
-    return bool(value)
-
-
-def read_float(props, name, default, minimum=None, strict=False):
-    value = float(props.get(name, default))
-    if not math.isfinite(value):
-        raise ValueError(f"{name}={value}: must be finite")
-    if minimum is not None and (value < minimum or (strict and value == minimum)):
-        cmp = ">" if strict else ">="
-        raise ValueError(f"{name}={value}: must be {cmp} {minimum}")
+        return value.strip().lower() == "true"
+    if not isinstance(value, bool):
+        raise ValueError(f"{name}={_show(value)}: expected true or false")
     return value
+
+
+def read_float(props, name, default, minimum=None, strict=False, maximum=None, why=None):
+    """Read a finite float property in [``minimum``, ``maximum``] (``strict``: > ``minimum``).
+
+    Accepts Mitsuba's float and integer properties and strings of a number; refuses booleans,
+    other strings, NaN and infinities, naming the parameter."""
+    raw = props.get(name, default)
+    value = None
+    if isinstance(raw, (int, float)) and not isinstance(raw, bool):
+        value = float(raw)
+    elif isinstance(raw, str):
+        try:
+            value = float(raw.strip())
+        except ValueError:
+            value = None
+    if value is None:
+        raise ValueError(f"{name}={_show(raw)}: expected a number")
+    if not math.isfinite(value):
+        raise ValueError(f"{name}={_show(value)}: must be finite")
+    _check_range(name, value, minimum, maximum, strict, why)
+    return value
+
+
+# -- what a prepass depends on --------------------------------------------------------------
+def _value_bytes(value) -> bytes:
+    """Bytes that change when a traversed parameter's value changes (arrays: their contents)."""
+    if isinstance(value, (bool, int, float, str)) or value is None:
+        return repr(value).encode()
+    if hasattr(value, "matrix") and not dr.is_array_v(value):  # (Affine)Transform4f, ...
+        value = value.matrix
+    if dr.is_array_v(value):
+        array = np.asarray(dr.detach(value))
+        return str((array.dtype, array.shape)).encode() + array.tobytes()
+    return f"{type(value).__name__}:{value!r}".encode()
+
+
+def parameter_fingerprint(obj, skip_camera=False) -> str:
+    """SHA-1 over ``mi.traverse(obj)``: every key and its value's bytes.
+
+    Two calls agree exactly when no traversed parameter (emitter radiance, BSDF albedo,
+    vertex positions, transforms, the film size and camera pose...) changed in between. With
+    ``skip_camera`` the parameters of sensors, films, samplers and reconstruction filters are
+    left out (for prepasses that do not look through the camera). Cost: one host copy and hash
+    of every parameter array, ~1–2 ms per MB (README "Using it")."""
+    camera_types = (mi.Sensor, mi.Film, mi.Sampler, mi.ReconstructionFilter)
+    params = mi.traverse(obj)
+    h = hashlib.sha1()
+    for key in params.keys():
+        node = params.properties[key][2]
+        if skip_camera and isinstance(node, camera_types):
+            continue
+        h.update(key.encode())
+        h.update(b"\0")
+        h.update(_value_bytes(params[key]))
+        h.update(b"\1")
+    return h.hexdigest()
+
+
+def _as_int(seed) -> int:
+    """A render seed as a Python int (``mi.render`` may pass a one-element ``mi.UInt32``)."""
+    if dr.is_array_v(seed):
+        if dr.width(seed) != 1:
+            raise ValueError(f"seed: expected one value, got an array of {dr.width(seed)}")
+        return int(dr.detach(seed)[0])
+    return int(seed)
+
+
+#: parameters a prepass may not exceed, with what the bound protects (see the readers)
+MAX_DEPTH_LIMIT = (1 << 31) - 1
+MAX_SEED = (1 << 31) - 1
+#: patches: ~6 kB each at the peak of ``build_patches`` (measured on office.xml, 32 k patches)
+MAX_PATCHES = 1 << 20
+BYTES_PER_PATCH_BUILD = 6000
+#: receiving elements in all (elements_per_patch × max_patches): ~3 kB each while built
+MAX_ELEMENTS = 1 << 22
+BYTES_PER_ELEMENT_BUILD = 3000
+#: particles per patch: memory is bounded by batches, this bounds the prepass's time
+MAX_PARTICLES_PER_PATCH = 1 << 24
+
+
+class NotDifferentiableError(NotImplementedError):
+    """``dr.backward`` / ``dr.forward`` through a render of a mi_twopass integrator."""
 
 
 class TwoPassIntegrator(mi.SamplingIntegrator):
@@ -80,7 +225,7 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
     .. list-table::
        * - max_depth
          - int, default -1
-         - Longest path (-1: unbounded, as Mitsuba's ``path``).
+         - Longest path (-1: unbounded, as Mitsuba's ``path``; 0: a black image, no prepass).
        * - rr_depth
          - int, default 5
          - Depth at which Russian roulette starts on continued paths.
@@ -90,19 +235,50 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
        * - component
          - string, default "all"
          - "direct" (emission + direct light) / "indirect" (everything else) / "all".
+
+    Prepass reuse: a render reuses the last prepass when the scene is the same object, no
+    parameter of ``mi.traverse(scene)`` changed (:func:`parameter_fingerprint`: emitters, BSDFs,
+    geometry, transforms, and, where ``PREPASS_USES_CAMERA``, the sensors and films), the
+    render's sensor is the same with the same parameters (``PREPASS_USES_CAMERA``),
+    :meth:`settings` are equal and the prepass seed is the same; otherwise it runs the prepass
+    again. The integrator holds the scene and sensor of its last prepass (Mitsuba objects have
+    no weak references), so a new scene can never take a freed scene's identity.
+
+    Not differentiable: the forward render of a scene with grad-enabled parameters works (the
+    detached values are rendered), but ``dr.backward`` / ``dr.forward`` through it raise
+    :class:`NotDifferentiableError` (use Mitsuba's ``prb``).
     """
+
+    #: the prepass looks through the camera (film size, pose): sensor parameters join its key.
+    #: Subclasses whose prepass ignores the camera set False (fewer rebuilds).
+    PREPASS_USES_CAMERA = True
 
     def __init__(self, props):
         super().__init__(props)
-        self.max_depth = read_int(props, "max_depth", -1, minimum=-1)
-        self.rr_depth = read_int(props, "rr_depth", 5, minimum=1)
-        self.seed = read_int(props, "seed", 0, minimum=0)
+        self.max_depth = read_int(props, "max_depth", -1, minimum=-1, maximum=MAX_DEPTH_LIMIT,
+                                  why="a 32-bit path depth; -1 is unbounded")
+        self.rr_depth = read_int(props, "rr_depth", 5, minimum=1, maximum=MAX_DEPTH_LIMIT,
+                                 why="a 32-bit path depth")
+        self.seed = read_int(props, "seed", 0, minimum=0, maximum=MAX_SEED,
+                             why="seeds are 32-bit")
         self.component = read_choice(props, "component", "all", COMPONENTS)
         self.structure = None
+        #: added to the render's seed for the samplers only, never for the prepass: a render
+        #: split into passes gives each pass its own offset and they share one prepass
+        self.sample_seed_offset = 0
+        #: the sensor of the render whose prepass runs (``None`` outside ``ensure_prepass``)
+        self.prepass_sensor = None
         self._prepass_key = None
+        self._prepass_scene = None
+        self._prepass_sensor_obj = None
+        self._prepass_time = 0.0
+        self._prepass_stats = {}
         self._in_render = False
         self._counters = {}
         self.stats = {k: 0 for k in STAT_KEYS}
+        #: keys of ``stats`` that describe the prepass's structure (patch counts, bytes...):
+        #: a render split into passes must not add them up
+        self.structure_stat_keys = frozenset()
         self._read_props(props)
 
     @property
@@ -149,18 +325,39 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
 
     # -- render -----------------------------------------------------------------------------
     def prepass_seed(self, seed) -> int:
-        return int(seed) + self.seed
+        """The prepass's seed for a render's ``seed``: the render's seed plus ``seed``."""
+        return _as_int(seed) + self.seed
 
-    def ensure_prepass(self, scene, seed=0):
-        """Run the prepass unless one for the same scene, settings and seed is cached."""
-        key = (id(scene), self.settings(), self.prepass_seed(seed))
-        if self._prepass_key == key and self.structure is not None:
+    def prepass_key(self, scene, sensor, seed) -> tuple:
+        """What the prepass depends on, besides the identity of the scene and sensor objects:
+        the scene's parameter fingerprint (sensors included where ``PREPASS_USES_CAMERA``),
+        the render sensor's fingerprint (idem), :meth:`settings` and the prepass seed."""
+        camera = self.PREPASS_USES_CAMERA
+        scene_fp = parameter_fingerprint(scene, skip_camera=not camera)
+        sensor_fp = parameter_fingerprint(sensor) if camera and sensor is not None else None
+        return (scene_fp, sensor_fp, self.settings(), self.prepass_seed(seed))
+
+    def ensure_prepass(self, scene, seed=0, sensor=None):
+        """Run the prepass unless the cached one was built for this scene object and sensor
+        with the same parameters, settings and seed (:meth:`prepass_key`). Returns
+        (structure, seconds spent: 0.0 when reused)."""
+        if sensor is None and len(scene.sensors()):
+            sensor = scene.sensors()[0]
+        key = self.prepass_key(scene, sensor, seed)
+        same_objects = self._prepass_scene is scene and (
+            not self.PREPASS_USES_CAMERA or self._prepass_sensor_obj is sensor)
+        if same_objects and self._prepass_key == key and self.structure is not None:
             return self.structure, 0.0
         t0 = time.perf_counter()
-        structure = self.prepass(scene, self.prepass_seed(seed))
+        self.prepass_sensor = sensor
+        try:
+            structure = self.prepass(scene, self.prepass_seed(seed))
+        finally:
+            self.prepass_sensor = None
         dr.sync_thread()
         elapsed = time.perf_counter() - t0
         self.structure, self._prepass_key = structure, key
+        self._prepass_scene, self._prepass_sensor_obj = scene, sensor
         self._prepass_time = elapsed
         self._prepass_stats = dict(self.prepass_stats(structure))
         return structure, elapsed
@@ -170,12 +367,15 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
             sensor = scene.sensors()[sensor]
         if self._in_render:  # the C++ overload dispatching back: render directly
             return super().render(scene, sensor, seed, spp, develop, evaluate)
+        sampler_seed = seed + self.sample_seed_offset if self.sample_seed_offset else seed
+        if self.max_depth == 0:
+            return self._render_black(scene, sensor, sampler_seed, spp, develop, evaluate)
         self._in_render = True
         try:
-            _, prepass_seconds = self.ensure_prepass(scene, int(seed))
+            _, prepass_seconds = self.ensure_prepass(scene, seed, sensor)
             self._counters = {}
             t0 = time.perf_counter()
-            image = super().render(scene, sensor, seed, spp, develop, evaluate)
+            image = super().render(scene, sensor, sampler_seed, spp, develop, evaluate)
             dr.eval(image)
             dr.sync_thread()
             render_seconds = time.perf_counter() - t0
@@ -183,6 +383,33 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
             self._in_render = False
         self._finish_stats(sensor, spp, prepass_seconds, render_seconds)
         return image
+
+    def _render_black(self, scene, sensor, seed, spp, develop, evaluate):
+        """``max_depth = 0``: what Mitsuba's ``path`` renders (black, alpha 0, the film's
+        size and channels), without a prepass."""
+        t0 = time.perf_counter()
+        black = mi.load_dict({"type": "path", "max_depth": 0})
+        image = black.render(scene, sensor, seed, spp, develop, evaluate)
+        dr.eval(image)
+        dr.sync_thread()
+        self._counters = {}
+        self._prepass_stats = {}
+        self._finish_stats(sensor, spp, 0.0, time.perf_counter() - t0)
+        return image
+
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        """Not available: see :class:`NotDifferentiableError`."""
+        raise NotDifferentiableError(self._not_differentiable())
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        """Not available: see :class:`NotDifferentiableError`."""
+        raise NotDifferentiableError(self._not_differentiable())
+
+    def _not_differentiable(self) -> str:
+        return (f"{type(self).__name__} is not differentiable: its prepass and gather are not "
+                "traced by Dr.Jit's AD, so it cannot give gradients of scene parameters "
+                "(the forward render uses their detached values). Use Mitsuba's 'prb' "
+                "integrator for dr.backward / dr.forward.")
 
     def _finish_stats(self, sensor, spp, prepass_seconds, render_seconds):
         stats = {k: 0 for k in STAT_KEYS}
@@ -197,6 +424,8 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         stats["prepass_seconds"] = prepass_seconds  # 0.0 when the prepass was reused
         stats["prepass_seconds_last_built"] = self._prepass_time
         stats["render_seconds"] = render_seconds
+        self.structure_stat_keys = frozenset(self._prepass_stats) | {
+            "prepass_rays", "cache_bytes", "prepass_seconds_last_built"}
         self.stats = stats
 
     def aov_names(self):
@@ -217,13 +446,10 @@ class FarGatherIntegrator(TwoPassIntegrator):
 
     def _read_far_gather_props(self, props):
         self.r_thresh_rel = read_float(props, "r_thresh_rel", 0.1, minimum=0.0)
-        self.r_thresh_abs = read_float(props, "r_thresh", -1.0) if "r_thresh" in props else None
-        if self.r_thresh_abs is not None and self.r_thresh_abs < 0:
-            raise ValueError(f"r_thresh={self.r_thresh_abs}: must be >= 0")
-        patches, particles, elements = self.RADIOSITY_DEFAULTS
-        self.max_patches = read_int(props, "max_patches", patches, minimum=1)
-        self.particles_per_patch = read_int(props, "particles_per_patch", particles, minimum=1)
-        self.elements_per_patch = read_int(props, "elements_per_patch", elements, minimum=1)
+        self.r_thresh_abs = read_float(props, "r_thresh", 0.0, minimum=0.0) \
+            if "r_thresh" in props else None
+        self.max_patches, self.particles_per_patch, self.elements_per_patch = \
+            read_radiosity_budget(props, *self.RADIOSITY_DEFAULTS)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
 
     @property
@@ -247,3 +473,22 @@ class FarGatherIntegrator(TwoPassIntegrator):
         if self.r_thresh_abs is not None:
             return self.r_thresh_abs
         return self.r_thresh_rel * float(dr.norm(scene.bbox().extents()))
+
+
+def read_radiosity_budget(props, max_patches=1024, particles_per_patch=256,
+                          elements_per_patch=16) -> tuple:
+    """Read and bound ``max_patches``, ``particles_per_patch`` and ``elements_per_patch`` (the
+    radiosity prepass's budget, shared by every integrator that runs it); returns the three."""
+    patches = read_int(props, "max_patches", max_patches, minimum=1, maximum=MAX_PATCHES,
+                       why=needs_memory(BYTES_PER_PATCH_BUILD, "building the patches"))
+    particles = read_int(
+        props, "particles_per_patch", particles_per_patch, minimum=1,
+        maximum=MAX_PARTICLES_PER_PATCH,
+        why=lambda v: f"{float(v) * patches:.3g} particles for max_patches={patches}: "
+                      "hours of prepass")
+    elements = read_int(props, "elements_per_patch", elements_per_patch, minimum=1,
+                        maximum=MAX_ELEMENTS // patches,
+                        why=lambda v: f"{v} × max_patches={patches} receiving elements; "
+                                      + needs_memory(BYTES_PER_ELEMENT_BUILD,
+                                                     "building them")(v * patches))
+    return patches, particles, elements

@@ -30,11 +30,37 @@ def test_load_file_and_load_dict(name, tmp_path):
 
 
 def test_no_placeholder_names():
-    """Integrators that do not exist yet are not registered."""
-    for name in ("spike_gather", "rex", "radiance_cache"):
-        if name not in PLUGINS:
-            with pytest.raises(Exception):
+    """Only integrators that exist are registered: every listed plugin implements its own
+    prepass and estimator, and a name that is not listed is not found."""
+    from mi_twopass.integrators.base import TwoPassIntegrator
+
+    for name in PLUGINS:
+        cls = type(mi.load_dict({"type": name}))
+        assert cls.prepass is not TwoPassIntegrator.prepass, name
+        assert cls.sample is not mi.SamplingIntegrator.sample, name
+    with pytest.raises(RuntimeError, match="not found"):
+        mi.load_dict({"type": "mi_twopass_placeholder"})
+
+
+UNSUPPORTED = [v for v in ("scalar_rgb", "llvm_ad_mono", "scalar_spectral", "llvm_ad_spectral")
+               if v in mi.variants()]
+
+
+@pytest.mark.skipif(not UNSUPPORTED, reason="no unsupported variant in this Mitsuba build")
+@pytest.mark.parametrize("variant", UNSUPPORTED)
+def test_unsupported_variant_says_which_variants_work(variant):
+    try:
+        mi.set_variant(variant)
+        for name in PLUGINS:
+            with pytest.raises(RuntimeError) as e:
                 mi.load_dict({"type": name})
+            msg = str(e.value)
+            assert "not found" not in msg
+            assert f"integrator '{name}'" in msg and f"variant '{variant}'" in msg
+            assert "llvm_ad_rgb" in msg and "UnsupportedVariantError" in msg
+    finally:
+        mi.set_variant("llvm_ad_rgb")
+    assert isinstance(mi.load_dict({"type": "rex"}), mi.SamplingIntegrator)
 
 
 def test_variant_switch_reregisters():

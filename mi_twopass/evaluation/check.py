@@ -1,0 +1,216 @@
+"""``python -m mi_twopass check``: is each integrator right on a scene?
+
+For each integrator: one render of the scene at a modest spp, compared with the cached ``path``
+reference (:func:`~mi_twopass.evaluation.reference.reference_image`) by two numbers that a
+correct integrator keeps small whatever its noise pattern:
+
+* the image mean ratio (mean / reference mean over pixels and channels): a global energy
+  error (a missing light path, a wrong normalisation) moves it;
+* the block relMSE: relMSE of the 8×8-pixel block means, mean((b − r)² / (r² + 0.01)) over
+  blocks and channels; averaging 64 pixels first removes most of the per-pixel noise, so what
+  is left is mostly bias in regions (a dark corner, a missing caustic).
+
+A row is marked "OUT" when |ratio − 1| > 1 % or block relMSE > 3e-3 (:data:`RATIO_TOLERANCE`,
+:data:`BLOCK_RELMSE_MAX`). Both include the noise of the render and of the reference: raise
+``spp`` / ``ref_spp`` before reading an OUT as a bias. An integrator that refuses the scene
+(``ValueError`` / ``NotImplementedError`` from its prepass) is reported as refused, with its
+message. The result is a report: nothing here raises for a row that is out of bounds.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..scenefile import load_scene
+from .harness import make_integrator
+from .metrics import RELMSE_EPS
+from .reference import reference_image
+
+#: what ``check`` runs when no integrators are named
+DEFAULT_INTEGRATORS = ("radiosity_gather", "spike_gather", "rex", "radiance_cache")
+DEFAULT_SPP = 64
+DEFAULT_REF_SPP = 1024
+#: block side in pixels of the block relMSE
+BLOCK = 8
+#: bounds of a row that is in: |mean ratio − 1| and block relMSE
+RATIO_TOLERANCE = 0.01
+BLOCK_RELMSE_MAX = 3e-3
+#: added to the render's seed, so that no render shares its random numbers with the reference
+RENDER_SEED_OFFSET = 0x5EED
+
+
+@dataclass
+class CheckRow:
+    """One integrator's line of the report (``refused`` set: the other numbers are None)."""
+
+    integrator: str
+    seconds: float | None = None
+    prepass_seconds: float | None = None
+    render_seconds: float | None = None
+    mean_ratio: float | None = None
+    block_relmse: float | None = None
+    out: bool = False
+    refused: str | None = None
+    stats: dict = field(default_factory=dict)
+
+
+def block_means(image, block: int = BLOCK) -> np.ndarray:
+    """Means of ``block`` × ``block`` pixel blocks of an (H, W, C) image, shape
+    (ceil(H/block), ceil(W/block), C); blocks at the right and bottom edges may be smaller and
+    average the pixels they have."""
+    x = np.asarray(image, dtype=np.float64)
+    if x.ndim == 2:
+        x = x[..., None]
+    h, w = x.shape[:2]
+    rows = np.arange(0, h, block)
+    cols = np.arange(0, w, block)
+    sums = np.add.reduceat(np.add.reduceat(x, rows, axis=0), cols, axis=1)
+    counts = np.outer(np.minimum(block, h - rows), np.minimum(block, w - cols))
+    return sums / counts[..., None]
+
+
+def block_relmse(image, ref, block: int = BLOCK, eps: float = RELMSE_EPS) -> float:
+    """relMSE of the block means: mean((b − r)² / (r² + eps)) over blocks and channels."""
+    x = np.asarray(image, dtype=np.float64)
+    r = np.asarray(ref, dtype=np.float64)
+    if x.shape != r.shape:
+        raise ValueError(f"image shape {x.shape} differs from reference shape {r.shape}")
+    b, rb = block_means(x, block), block_means(r, block)
+    return float(np.mean((b - rb) ** 2 / (rb**2 + eps)))
+
+
+def mean_ratio(image, ref) -> float:
+    """Mean of the image over the reference's (pixels and channels); 1 when both are 0, inf
+    when only the reference is."""
+    m = float(np.mean(np.asarray(image, dtype=np.float64)))
+    r = float(np.mean(np.asarray(ref, dtype=np.float64)))
+    if r == 0.0:
+        return 1.0 if m == 0.0 else math.inf
+    return m / r
+
+
+def is_out(ratio, brel, ratio_tol: float = RATIO_TOLERANCE,
+           brel_max: float = BLOCK_RELMSE_MAX) -> bool:
+    """True unless |ratio − 1| ≤ ``ratio_tol`` and ``brel`` ≤ ``brel_max`` (NaN is out)."""
+    return not (abs(ratio - 1.0) <= ratio_tol and brel <= brel_max)
+
+
+def refusal_of(exc):
+    """The ``ValueError`` / ``NotImplementedError`` by which an integrator refused a scene,
+    found in ``exc`` or the exceptions it was raised from (``mi.render`` re-raises what a
+    prepass raises as a ``RuntimeError`` of Dr.Jit's custom operation); None if there is
+    none."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (ValueError, NotImplementedError)):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0) -> CheckRow:
+    """Render ``scene`` with a fresh integrator from ``spec`` (``NAME[:key=value...]``) at
+    ``spp`` and compare with ``ref``. A ``ValueError`` / ``NotImplementedError`` raised while
+    rendering (a prepass refusing the scene) gives a refused row; an integrator that cannot be
+    made from ``spec`` raises (it is the caller's error, not the scene's)."""
+    integrator = make_integrator(spec)
+    dr.sync_thread()
+    t0 = time.perf_counter()
+    try:
+        image = mi.render(scene, integrator=integrator, spp=spp, seed=seed + RENDER_SEED_OFFSET)
+        image = np.asarray(image, dtype=np.float32)[..., :3]
+    except (ValueError, NotImplementedError, RuntimeError) as e:
+        cause = refusal_of(e)
+        if cause is None:
+            raise
+        return CheckRow(spec, refused=" ".join(str(cause).split()) or type(cause).__name__)
+    dr.sync_thread()
+    wall = time.perf_counter() - t0
+    stats = dict(getattr(integrator, "stats", {}) or {})
+    if "prepass_seconds" in stats and "render_seconds" in stats:
+        pre, ren = float(stats["prepass_seconds"]), float(stats["render_seconds"])
+        seconds = pre + ren
+    else:
+        pre, ren, seconds = 0.0, wall, wall
+    ratio = mean_ratio(image, ref)
+    brel = block_relmse(image, ref)
+    return CheckRow(spec, seconds=seconds, prepass_seconds=pre, render_seconds=ren,
+                    mean_ratio=ratio, block_relmse=brel, out=is_out(ratio, brel),
+                    stats={k: v for k, v in stats.items() if isinstance(v, (int, float, str))})
+
+
+def run_check(scene_path, integrators=DEFAULT_INTEGRATORS, spp: int = DEFAULT_SPP,
+              film_res: int | None = None, ref_spp: int = DEFAULT_REF_SPP,
+              params: dict | None = None, seed: int = 0, log=None) -> dict:
+    """Check every integrator spec on ``scene_path`` (with ``params``; the film's longer side
+    set to ``film_res`` pixels when given) against the cached ``path`` reference at
+    ``ref_spp``. Returns ``{"meta": {...}, "rows": [CheckRow, ...]}``; ``log`` (e.g.
+    ``print``) hears about each row as it is done."""
+    params = dict(params or {})
+    for name, value in (("spp", spp), ("ref_spp", ref_spp)):
+        if int(value) < 1:
+            raise ValueError(f"{name}={value}: must be >= 1")
+    ref = reference_image(scene_path, params, spp=ref_spp, film_res=film_res,
+                          verbose=log is not None)
+    scene = load_scene(scene_path, film_res=film_res, **params)
+    w, h = (int(v) for v in scene.sensors()[0].film().crop_size())
+    rows = []
+    for spec in integrators:
+        row = check_integrator(scene, spec, ref, spp, seed)
+        rows.append(row)
+        if log is not None:
+            log(format_row(row))
+    meta = {"scene": os.fspath(scene_path), "params": params, "film_res": film_res,
+            "width": w, "height": h, "spp": spp, "ref_spp": ref_spp, "seed": seed,
+            "variant": mi.variant(), "ratio_tolerance": RATIO_TOLERANCE,
+            "block_relmse_max": BLOCK_RELMSE_MAX, "block": BLOCK}
+    return {"meta": meta, "rows": rows}
+
+
+HEADER = f"{'integrator':<32} {'seconds':>8} {'mean ratio':>11} {'block relMSE':>13}"
+
+
+def format_row(row: CheckRow) -> str:
+    """One line of the table: numbers, "OUT" when out of bounds, or "refused: <message>"."""
+    if row.refused is not None:
+        return f"{row.integrator:<32} refused: {row.refused}"
+    line = (f"{row.integrator:<32} {row.seconds:>8.2f} {row.mean_ratio:>11.4f} "
+            f"{row.block_relmse:>13.2e}")
+    return line + ("  OUT" if row.out else "")
+
+
+def format_table(result: dict) -> str:
+    """The report: what was compared, the bounds, the header and one row per integrator."""
+    m = result["meta"]
+    lines = [f"check {m['scene']} {m['params'] or ''} {m['width']}x{m['height']}, "
+             f"{m['spp']} spp against path at {m['ref_spp']} spp; OUT: |ratio - 1| > "
+             f"{m['ratio_tolerance']:g} or block ({m['block']}x{m['block']} px) relMSE > "
+             f"{m['block_relmse_max']:g}",
+             HEADER]
+    lines += [format_row(r) for r in result["rows"]]
+    return "\n".join(lines)
+
+
+def write_json(result: dict, path) -> None:
+    """Write the report as JSON (rows as dicts; non-finite numbers as null)."""
+    def clean(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+
+    data = {"meta": result["meta"], "rows": [asdict(r) for r in result["rows"]]}
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w") as f:
+        json.dump(clean(data), f, indent=1, default=str)

@@ -1,0 +1,126 @@
+"""mi_twopass.evaluation.check (the ``check`` report) and scenefile.load_scene's film_res."""
+import os
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mi_twopass.evaluation import check, reference
+from mi_twopass.scenefile import SceneFileError, load_scene
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+CORNELL = os.path.join(ROOT, "scenes_xml", "cornell_box.xml")
+
+
+def test_block_means_average_partial_edge_blocks():
+    img = np.arange(10 * 9, dtype=np.float64).reshape(10, 9, 1)
+    b = check.block_means(img, block=8)
+    assert b.shape == (2, 2, 1)
+    assert b[0, 0, 0] == img[:8, :8].mean() and b[1, 1, 0] == img[8:, 8:].mean()
+    assert b[0, 1, 0] == img[:8, 8:].mean()
+
+
+def test_block_relmse_ignores_zero_mean_noise_inside_blocks():
+    rng = np.random.default_rng(1)
+    ref = np.full((16, 16, 3), 0.5)
+    signs = np.tile(np.array([[1.0, -1.0], [-1.0, 1.0]]), (8, 8))[..., None]
+    noisy = ref + 0.3 * signs * rng.random((1, 1, 3))  # cancels in every 8x8 block
+    assert check.block_relmse(noisy, ref) == pytest.approx(0.0, abs=1e-20)
+    biased = ref * 1.1
+    assert check.block_relmse(biased, ref) == pytest.approx(0.05**2 / (0.25 + 0.01))
+    with pytest.raises(ValueError, match="shape"):
+        check.block_relmse(ref[:8], ref)
+
+
+def test_mean_ratio_and_bounds():
+    ref = np.full((4, 4, 3), 2.0)
+    assert check.mean_ratio(ref * 0.98, ref) == pytest.approx(0.98)
+    assert check.mean_ratio(np.zeros_like(ref), np.zeros_like(ref)) == 1.0
+    assert check.mean_ratio(ref, np.zeros_like(ref)) == np.inf
+    assert not check.is_out(1.005, 1e-3)
+    assert check.is_out(1.02, 1e-3) and check.is_out(0.985, 1e-3) and check.is_out(1.0, 4e-3)
+    assert check.is_out(float("nan"), 0.0) and check.is_out(1.0, float("nan"))
+
+
+def test_a_refusing_integrator_is_a_row_not_a_crash(monkeypatch, ref_cache):
+    from mi_twopass.integrators import radiosity_gather
+
+    def refuse(self, scene, seed):
+        raise ValueError("this scene has no diffuse surface")
+
+    monkeypatch.setattr(radiosity_gather.RadiosityGatherIntegrator, "prepass", refuse)
+    result = check.run_check(CORNELL, ["radiosity_gather", "path"], spp=2, film_res=8,
+                             ref_spp=16)
+    refused, path = result["rows"]
+    assert refused.refused == "this scene has no diffuse surface" and refused.seconds is None
+    assert path.refused is None and path.mean_ratio > 0
+    table = check.format_table(result)
+    assert "radiosity_gather                 refused: this scene has no diffuse surface" in table
+    assert "8x8" in table
+
+
+SCENE_WITH_MESH = """<scene version="3.0.0">
+  <default name="w" value="40"/>
+  <default name="spp" value="2"/>
+  <sensor type="perspective">
+    <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="$w"/><integer name="height" value="20"/>
+    </film>
+  </sensor>
+  <shape type="obj"><string name="filename" value="meshes/quad.obj"/>
+    <emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>
+</scene>
+"""
+
+QUAD = "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n"
+
+
+@pytest.fixture
+def scene_with_mesh(tmp_path):
+    folder = tmp_path / "scene"
+    (folder / "meshes").mkdir(parents=True)
+    (folder / "meshes" / "quad.obj").write_text(QUAD)
+    (folder / "s.xml").write_text(SCENE_WITH_MESH)
+    return str(folder / "s.xml")
+
+
+def test_film_res_keeps_aspect_and_resolves_relative_paths(scene_with_mesh, tmp_path):
+    resolver = mi.file_resolver()
+    before = [str(resolver[i]) for i in range(len(resolver))]
+    cwd = os.getcwd()
+    os.chdir(tmp_path)  # the mesh must resolve from the scene's folder, not from here
+    try:
+        scene = load_scene(scene_with_mesh, film_res=10)
+        assert list(scene.sensors()[0].film().crop_size()) == [10, 5]
+        assert len(scene.shapes()) == 1
+        scene = load_scene(scene_with_mesh, film_res=12, w=10)  # -D w=10: 10x20 → 6x12
+        assert list(scene.sensors()[0].film().crop_size()) == [6, 12]
+        scene = load_scene(scene_with_mesh, film_res=12, w=10, spp=3)
+        assert scene.sensors()[0].sampler().sample_count() == 3
+    finally:
+        os.chdir(cwd)
+    assert [str(resolver[i]) for i in range(len(resolver))] == before
+    assert sorted(os.listdir(os.path.dirname(scene_with_mesh))) == ["meshes", "s.xml"]
+
+
+def test_film_res_errors_name_the_file(scene_with_mesh, tmp_path):
+    with pytest.raises(SceneFileError, match="unknown parameter.*foo=1"):
+        load_scene(scene_with_mesh, film_res=8, foo=1)
+    with pytest.raises(SceneFileError, match="film_res=0: must be >= 1"):
+        load_scene(scene_with_mesh, film_res=0)
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<scene><sensor>")
+    with pytest.raises(SceneFileError, match="bad.xml: malformed XML"):
+        load_scene(str(bad), film_res=8)
+    with pytest.raises(SceneFileError, match="bad.xml"):
+        load_scene(str(bad))
+
+
+def test_reference_key_includes_film_res(tiny_scene_file, ref_cache):
+    k = reference.reference_key(tiny_scene_file, {}, 16)
+    assert reference.reference_key(tiny_scene_file, {}, 16, film_res=None) == k
+    assert reference.reference_key(tiny_scene_file, {}, 16, film_res=8) != k
+    img = reference.reference_image(tiny_scene_file, {}, spp=4, film_res=6)
+    assert img.shape == (6, 6, 3)
+    assert reference.reference_image(tiny_scene_file, {}, spp=4, film_res=4).shape == (4, 4, 3)
