@@ -96,6 +96,9 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
          paper's Fig. 7); "patches" a colour per patch; "virtual" marks virtual luminaires.
     """
 
+    #: the radiosity prepass never looks through the camera
+    PREPASS_USES_CAMERA = False
+
     def _read_props(self, props):
         self._read_far_gather_props(props)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)

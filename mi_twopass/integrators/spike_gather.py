@@ -12,7 +12,8 @@ from ..prepass.radiosity import receiving_elements, solve_radiosity
 from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
-from .base import FarGatherIntegrator, read_bool, read_choice, read_float, read_int
+from .base import (FarGatherIntegrator, needs_memory, read_bool, read_choice, read_float,
+                   read_int)
 from .pathtrace import (by_component, first_nondelta_hit, mis_weight, path_start,
                         russian_roulette)
 
@@ -224,11 +225,9 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
     RADIOSITY_DEFAULTS = (4096, 64, 4)
 
     def _read_props(self, props):
-        grid_res = int(props.get("grid_res", 32))
-        if grid_res <= 0:
-            raise ValueError(f"grid_res={grid_res}: must be > 0 (cells along the longest axis "
-                             "of the scene's bounding box)")
-        self.grid_res = grid_res
+        self.grid_res = read_int(props, "grid_res", 32, minimum=1, maximum=512,
+                                 why="cells along the longest axis of the scene's bounding box: "
+                                     "a cubic scene would need 512³ = 2^27 cells")
         self.e_high_rel = read_float(props, "e_high_rel", 4.0, minimum=0.0, strict=True)
         self.e_low_rel = read_float(props, "e_low_rel", 0.1, minimum=0.0)
         self.e_high = read_float(props, "e_high", 0.0, minimum=0.0) if "e_high" in props else None
@@ -241,9 +240,14 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         self.influence_rel = read_float(props, "influence_rel", 0.01, minimum=0.0)
         self.influence = read_float(props, "influence", 0.0, minimum=0.0) \
             if "influence" in props else None
-        self.visibility_max_rays = read_int(props, "visibility_max_rays", 100, minimum=10)
-        self.camera_res = read_int(props, "camera_res", 128, minimum=1)
-        self.cell_points = read_int(props, "cell_points", 8, minimum=1)
+        self.visibility_max_rays = read_int(props, "visibility_max_rays", 100, minimum=10,
+                                            maximum=10_000, why="rays per (cell, source) pair: "
+                                            "the prepass's time grows with it")
+        self.camera_res = read_int(props, "camera_res", 128, minimum=1, maximum=4096,
+                                   why=lambda v: needs_memory(200, "the camera pass's rays")(v * v))
+        self.cell_points = read_int(props, "cell_points", 8, minimum=1, maximum=1024,
+                                    why="visibility points per cell: the visibility rays grow "
+                                        "with it")
         self.gather_cells = read_bool(props, "gather_cells", True)
         self.jitter = read_float(props, "jitter", 1.0, minimum=0.0)
         self.complete = read_bool(props, "complete", True)
