@@ -132,7 +132,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         power = Br * np.asarray(patches.area)
         limit = self.vl_threshold_used * Br.max() if Br.size and self.far_gather_exact \
             else math.inf
-        chosen = np.nonzero((Br >= limit) & (power > 0) & (Br > 0))[0].astype(np.uint32)
+        chosen = np.nonzero((Br >= limit) & (power > 0) & (Br > 0)
+                            & patches.is_diffuse)[0].astype(np.uint32)
         self.vl_count = int(chosen.size)
         is_vl = np.zeros(patches.count + 1, dtype=bool)
         is_vl[chosen] = True
@@ -152,7 +153,11 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         return {"prepass_rays": int(solution.rays) + int(probe),
                 "patches": int(solution.patches.count),
                 "elements": int(solution.elements.count) if solution.elements is not None else 0,
-                "virtual_luminaires": self.vl_count, "cache_bytes": int(solution.nbytes)}
+                "virtual_luminaires": self.vl_count, "cache_bytes": int(solution.nbytes),
+                # patches / elements cut by geometry: traced on, not read (light-leak guard)
+                "split_patches": int(np.sum(solution.patches.is_split)),
+                "split_elements": int(np.sum(solution.elements.is_split))
+                if solution.elements is not None else 0}
 
     # -- gather -----------------------------------------------------------------------------
     def far_reflected(self, ray, si, gather_ray, r_thresh):

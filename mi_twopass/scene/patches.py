@@ -352,8 +352,8 @@ class Patches:
     area: np.ndarray  # (N,) m², exposed (not buried in closed geometry): E = ΣΦ / area
     center: np.ndarray  # (N, 3)
     normal: np.ndarray  # (N, 3) unit, pointing to the patch's side
-    albedo: np.ndarray  # (N, 3) diffuse reflectance, 0 where not is_diffuse
-    is_diffuse: np.ndarray  # (N,) bool
+    albedo: np.ndarray  # (N, 3) diffuse reflectance, 0 where the BSDF is not purely diffuse
+    is_diffuse: np.ndarray  # (N,) bool: purely diffuse and not split, i.e. cached
     Le: np.ndarray  # (N, 3) emitted radiance (W/m²/sr), front side of area emitters
     shape_index: np.ndarray  # (N,) index into scene.shapes()
     side: np.ndarray  # (N,) 0 front, 1 back
@@ -367,7 +367,8 @@ class Patches:
     shape_names: list = field(default_factory=list)
     geometric_area: np.ndarray | None = None  # (N,) m², whole patch, buried parts included
     exposure: np.ndarray | None = None  # (N,) open fraction area / geometric_area (probed)
-    probe_rays: int = 0  # rays cast by the exposure probe
+    probe_rays: int = 0  # rays cast by the exposure and split probes
+    is_split: np.ndarray | None = None  # (N,) bool: cut by geometry (_probe_split), not cached
     _tables: dict = field(default_factory=dict, repr=False)
 
     # -- sizes -------------------------------------------------------------------------------
@@ -556,14 +557,14 @@ def build_patches(scene, max_patches: int = 4096, seed: int = 0,
     order = np.argsort(tri_p, kind="stable")
     tri_v, tri_p, tri_n = tri_v[order], tri_p[order], tri_n[order]
 
-    albedo, is_diffuse, Le, exposure, probe_rays = _evaluate_properties(scene, parts, N, seed,
-                                                                        int(samples))
+    albedo, is_diffuse, Le, exposure, probe_rays, is_split = _evaluate_properties(
+        scene, parts, N, seed, int(samples))
     geometric_area = area.astype(np.float64)
 
     patches = Patches(
         area=geometric_area * exposure, geometric_area=geometric_area, exposure=exposure,
         probe_rays=probe_rays, center=center, normal=normal, albedo=albedo,
-        is_diffuse=is_diffuse, Le=Le, shape_index=shape_index, side=side,
+        is_diffuse=is_diffuse, is_split=is_split, Le=Le, shape_index=shape_index, side=side,
         tri_vertices=tri_v.astype(np.float32), tri_patch=tri_p.astype(np.uint32),
         tri_normal=tri_n.astype(np.float32), target_area=float(a), max_patches=max_patches,
         bbox_min=bmin, bbox_max=bmax,
@@ -697,7 +698,7 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     is_diffuse = np.zeros(N, dtype=bool)
     exposure = np.ones(N)
     if N == 0:
-        return albedo, is_diffuse, Le, exposure, 0
+        return albedo, is_diffuse, Le, exposure, 0, np.zeros(0, dtype=bool)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9A7C]))
     pos_in_dr = {int(r): i for i, r in
                  enumerate(np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())))}
@@ -792,10 +793,11 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     for part in parts:
         g, K, b0 = part["geom"], part["K"], part["base"]
         is_diffuse[b0:b0 + K * _sides(g)] = g.diffuse
+    # the surface's albedo stays (energy bookkeeping); a split patch is just not cached
+    albedo = np.where(is_diffuse[:, None], np.maximum(albedo, 0.0), 0.0)
     split, split_rays = _probe_split(scene, P, side_normal, patch_of, enclosed, delta, N)
     is_diffuse &= ~split
-    albedo = np.where(is_diffuse[:, None], np.maximum(albedo, 0.0), 0.0)
-    return albedo, is_diffuse, np.maximum(Le, 0.0), exposure, 3 * n + split_rays
+    return albedo, is_diffuse, np.maximum(Le, 0.0), exposure, 3 * n + split_rays, split
 
 
 #: lift of the split probe's segment above the patch, as a fraction of the segment's length

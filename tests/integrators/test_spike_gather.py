@@ -306,7 +306,9 @@ def test_stats_reuse_components_and_debug_views():
     vr = st["viewing_rays"]
     assert vr == 16 * 16 * 4
     assert 0.25 * vr < st["implicit_rays"] <= vr
-    assert 0.9 * st["implicit_rays"] < st["explicit_rays"] <= st["implicit_rays"]
+    # one explicit ray per non-delta vertex; the gather ray that leaves it is counted unless
+    # the path ends there (Russian roulette, depth), which happens once per viewing ray at most
+    assert 0.9 * st["implicit_rays"] < st["explicit_rays"] <= st["implicit_rays"] + vr
     assert st["prepass_rays"] >= st["visibility_rays"] > 0
     assert st["cache_bytes"] > st["grid_bytes"] > 0 and st["prepass_seconds"] > 0
     b = np.asarray(mi.render(scene, integrator=integrator, spp=4, seed=3))
