@@ -376,8 +376,6 @@ class Patches:
     def count(self) -> int:
         return int(self.area.shape[0])
 
-    N = count
-
     @property
     def diagonal(self) -> float:
         return float(np.linalg.norm(self.bbox_max - self.bbox_min))
@@ -441,9 +439,6 @@ class Patches:
         (mi.Bool)}; the invalid id ``count`` gives zeros."""
         table = self._tables["patch_" + name]
         return dr.gather(type(table), table, patch_ids, active)
-
-    def albedo_of(self, patch_ids, active=True):
-        return self.gather("albedo", patch_ids, active)
 
     def sample_points(self, patch_ids, u2, active=True):
         """Uniform point on each patch (by area over its triangles): ``(p, n, pdf_area)``.
