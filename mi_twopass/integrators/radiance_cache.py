@@ -5,18 +5,22 @@ Arikan, Forsyth & O'Brien 2005, "Radiance Caching and Local Geometry Correction"
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 import drjit as dr
 import mitsuba as mi
 
 from ..prepass.near_field import build_near_field, buried_triangles, split_near_triangles
-from ..prepass.radiance_cache import (build_radiance_cache, collect_shading_points,
-                                      default_alpha)
+from ..prepass.radiance_cache import (NOT_DIFFUSE, build_radiance_cache,  # noqa: F401
+                                      cached_surface, collect_shading_points, default_alpha,
+                                      purely_diffuse, scene_bounds, scene_diagonal)
 from ..prepass.radiosity import receiving_elements, solve_radiosity
 from ..scene.patches import build_patches
-from .base import TwoPassIntegrator, read_choice, read_float, read_int
-from .pathtrace import MAX_DELTA_DEPTH, emission_mis, emitter_sample_mis, first_nondelta_hit
+from .base import TwoPassIntegrator, read_bool, read_choice, read_float, read_int
+from .pathtrace import (MAX_DELTA_DEPTH, by_component, emission_mis, first_nondelta_hit,
+                        mis_weight, path_start, russian_roulette)
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
 
@@ -26,12 +30,110 @@ DEBUG_MODES = ("none", "B_D", "B_C", "samples")
 #: B_C, §6); 0.03 needs about half the SH samples of 0.02.
 ALPHA_REL = 0.03
 
+#: accepted range of ``lambda``: 0 (far field alone) … 1 (the physical correction, eq. 2) … this
+#: (§8.1, Fig. 12: λ > 1 exaggerates B_C for fake GI); beyond it B_C swamps the image
+LAMBDA_MAX = 10.0
+
+#: the cache term's stated bias, as a fraction of the indirect light it replaces (order-2 SH,
+#: the coarse radiosity solution, RBF interpolation, the near field's visibility assumption):
+#: measured −1 … −10 % (class docstring, "Bias"); tests/integrators/test_radiance_cache*.py
+BIAS_BOUND = 0.15
+
+
+def shape_is_purely_diffuse(shape) -> bool:
+    """The shape's BSDF is purely diffuse reflection (:func:`purely_diffuse` of its flags)."""
+    bsdf = shape.bsdf()
+    return bsdf is not None and purely_diffuse(int(bsdf.flags()))
+
+
+def check_no_media(scene):
+    """ValueError naming the first participating medium of ``scene`` (on a sensor, an emitter or
+    a shape's inside or outside): radiance_cache transports light between surfaces only."""
+    found = []
+    for sensor in scene.sensors():
+        found.append(("sensor", sensor, sensor.get_medium()))
+    for emitter in scene.emitters():
+        found.append(("emitter", emitter, emitter.get_medium()))
+    for shape in scene.shapes():
+        found.append(("interior of shape", shape, shape.interior_medium()))
+        found.append(("exterior of shape", shape, shape.exterior_medium()))
+    for where, obj, medium in found:
+        if medium is not None:
+            raise ValueError(
+                f"radiance_cache: the scene has a participating medium ({medium.class_name()} "
+                f"'{medium.id()}', {where} '{obj.id()}'); radiance_cache transports light "
+                "between surfaces only and would render it as if it were not there: render the "
+                "scene with 'volpath', or set ignore_media=true to ignore it as 'path' does")
+
+
+def infinite_emitters_unbounded(scene) -> str:
+    """Names of the infinite emitters (sky, sun, envmap) of ``scene`` when its bounding box
+    misses part of its shapes, else "". Their ``sample_ray`` (the radiosity prepass's
+    particles) starts on Mitsuba's bounding sphere of ``scene.bbox()``: a box that misses the
+    merged walls of a room (Mitsuba 3.9.1: a merged mesh reports an invalid bbox) gives their
+    light the flux of a far too small sphere, e.g. 3e-7 W instead of ~30 W."""
+    infinite = [e for e in scene.emitters()
+                if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)]
+    if not infinite:
+        return ""
+    bounds = scene_bounds(scene)
+    if bounds is None:
+        return ""
+    box = scene.bbox()
+    lo, hi = bounds
+    tol = 1e-4 * float(np.linalg.norm(hi - lo))
+    if box.valid() and np.all(np.asarray(box.min, dtype=np.float64).ravel() <= lo + tol) \
+            and np.all(np.asarray(box.max, dtype=np.float64).ravel() >= hi - tol):
+        return ""
+    return ", ".join(f"{e.class_name()} '{e.id()}'" for e in infinite)
+
+
+def _box_str(box) -> str:
+    if not box.valid():
+        return "invalid"
+    lo, hi = (np.asarray(v, dtype=np.float64).ravel().round(6).tolist() for v in (box.min, box.max))
+    return f"{lo} … {hi}"
+
+
+def spawn_offset(si, d, scale):
+    """Origin of a ray leaving ``si`` in direction ``d``: Mitsuba's offset along the geometric
+    normal, RayEpsilon × (1 + max|p|), with the 1 replaced by ``scale`` = min(1, the scene's
+    bounding-box diagonal): the same as Mitsuba's for scenes of a metre or more, relative to the
+    scene below (Mitsuba's absolute 9e-5 m offset crosses a 1e-4 m scene)."""
+    mag = mi.math.RayEpsilon * (scale + dr.max(dr.abs(si.p)))
+    mag = dr.detach(dr.mulsign(mag, dr.dot(si.n, d)))
+    return dr.fma(mag, si.n, si.p)
+
+
+def spawn_ray(si, d, scale):
+    return mi.Ray3f(spawn_offset(si, d, scale), d, si.time, si.wavelengths)
+
+
+def spawn_ray_to(si, target, scale):
+    o = spawn_offset(si, target - si.p, scale)
+    d = target - o
+    dist = dr.norm(d)
+    return mi.Ray3f(o, d / dist, dist * (1.0 - mi.math.ShadowEpsilon), si.time, si.wavelengths)
+
+
+def emitter_sample(scene, si, bsdf, ctx, u, scale, active):
+    """:func:`~mi_twopass.integrators.pathtrace.emitter_sample_mis` with the scene-relative
+    shadow-ray offset of :func:`spawn_ray_to`: ``(f·Le·w_MIS/p, shadow ray cast)``."""
+    ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
+    cast = active & (ds.pdf != 0.0) & dr.any(em_weight != 0.0)
+    visible = cast & ~scene.ray_test(spawn_ray_to(si, ds.p, scale), cast)
+    bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), visible)
+    w = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
+    return dr.select(visible, w * bsdf_val * em_weight, 0.0), cast
+
 
 class CacheStructure:
-    """The prepass output: ``alpha``, ``patches``, ``solution`` (None with fake_gi), ``cache``
-    (:class:`~mi_twopass.prepass.radiance_cache.RadianceCache`) and ``near``
-    (:class:`~mi_twopass.prepass.near_field.NearField`). A plain class, indexable by name: Dr.Jit
-    does not traverse it as loop state."""
+    """The prepass output: ``alpha`` (the near-field radius), ``patches``, ``elements`` (or
+    None), ``solution`` (None with fake_gi), ``cache``
+    (:class:`~mi_twopass.prepass.radiance_cache.RadianceCache`), ``near``
+    (:class:`~mi_twopass.prepass.near_field.NearField`) and ``scale`` (the scene's diagonal);
+    ``cache`` is None where no vertex reads it (a finite max_depth, component "direct"). A
+    plain class, indexable by name: Dr.Jit does not traverse it as loop state."""
 
     def __init__(self, **parts):
         self.__dict__.update(parts)
@@ -49,17 +151,67 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
     A radiosity prepass (the coarse global solution), a sparse field of order-2 spherical
     harmonics of the *indirect* incident radiance fitted at clusters of the camera's shading
-    points (§4.1), and at render time, at the first non-delta hit (delta surfaces are followed as
-    a path)::
+    points (§4.1), and at render time Mitsuba's ``path`` estimator (emitter sampling and BSDF
+    sampling with MIS, Russian roulette) in which one vertex per path reads the cache instead
+    of tracing on: the *cache vertex*, the first purely diffuse surface reached from the camera
+    through delta (specular) vertices only, where the shading points are::
 
         L(x) = Le(x) + direct(x) [Mitsuba emitter sampling + one BSDF ray, MIS]
-                     + ρ(x)/π · (B_D(x) + λ · B_C(x))
+                     + ρ(x)/π · (B_D(x) + λ · B_C(x))      light reflected by cached surfaces
+                     + f·cos/p · L(y), y the BSDF ray's hit, when y is not cached (path traced)
 
         B_D = ⟨max(N·ω, 0)⟩ · ⟨L_F⟩                  (eq. 3, RBF-interpolated cluster SH)
         B_C = Σ_{triangles t, centroid within α} (R_t − π L_F(D_t)) · F(x → t)   (eq. 5, irradiance)
             (near_far="mean": R_t − B_D, the paper's eq. 6)
 
-    with R_t the *reflected* radiosity of the triangle's patch and F the point-to-triangle form
+    **What the cache holds.** ρ/π·E describes the outgoing radiance of a *purely diffuse*
+    reflector only, and a radiosity B_r/π the light leaving one only. So a surface is *cached*
+    where its BSDF has a diffuse-reflection lobe and nothing else (no glossy, delta,
+    transmission or null lobe: not ``plastic``, ``blendbsdf``, ``roughconductor``,
+    ``thindielectric``, ``mask``) and its radiosity patch on the side hit is diffuse and not cut
+    by geometry (:func:`~mi_twopass.prepass.radiance_cache.cached_surface`). The SH gather rays
+    read B_r/π only on cached surfaces (0 elsewhere), the near-field triangles of other
+    surfaces have R_t = 0, so ρ/π (B_D + λ B_C) estimates the light that reaches x *from cached
+    surfaces* and nothing else. The rest is path traced, never read from the cache: a vertex
+    that is not purely diffuse (a glossy, mixed or transmissive camera hit) continues as in
+    ``path``; at the cache vertex, the BSDF ray (also the MIS partner of emitter sampling) ends
+    on a cached surface (after its emission is counted) and otherwise carries the path on from
+    there. This is how light that reaches x through specular chains (L S+ D: a lamp behind a
+    window pane, caustics of glass and metal, the glossy floor's reflection) is counted, once:
+    the radiosity solution holds such light only after a diffuse bounce at another surface
+    (its particles follow every BSDF), which B_r of that surface carries to x as ordinary
+    indirect light. The back of a one-sided diffuse surface is black, as its BSDF is.
+
+    **max_depth.** The cache holds light of every path length, so with a finite ``max_depth``
+    no vertex reads it and the estimator *is* ``path`` (paths of at most ``max_depth``
+    segments; 0 black, 1 emitters seen directly), without a prepass.
+
+    **Bias.** The cache term is biased (order-2 SH, the coarse radiosity solution, RBF
+    interpolation between clusters, B_C's visibility assumption, the regularised fit of few
+    gather rays); the stated bound is :data:`BIAS_BOUND` = 15 % of the indirect light (``path``
+    − ``path(max_depth=2)``). Measured (16² px, image means against ``path``): −1 … −4 %
+    with the defaults (a closed room, a box lit by a 5 mm sphere, a bulb in a lamp shade);
+    −2 … −10 % with small prepasses (256 patches, 64 clusters of 64 gather rays: the Tikhonov
+    fit of few rays shrinks toward 0); on tut-cbox, veach-bidir and staircase2 (32² px)
+    within ±2 % of the whole image, within the noise. Everything else is unbiased: a scene
+    the camera sees no purely diffuse surface in is rendered as ``path``.
+
+    **Scale.** Every offset is relative to the scene's size: rays leave a surface by Mitsuba's
+    RayEpsilon × (min(1, bbox diagonal) + |p|) (:func:`spawn_offset`; Mitsuba's own is
+    absolute below 1 m), so a scene scaled by 1e-4 or 1e4 renders the same image.
+
+    **Infinite emitters in a box that misses shapes.** Mitsuba 3.9.1 gives the mesh it merges
+    from shapes sharing a BSDF an invalid ``bbox()``, and a sky, sun or envmap then shoots its
+    particles (``sample_ray``) from the bounding sphere of the other shapes only (a room of
+    merged walls: flux ~1e-7 of the true one). Where a scene has such emitters and its
+    bounding box misses shapes (:func:`infinite_emitters_unbounded`), the radiosity prepass
+    cannot be trusted: the integrator warns and renders ``path``.
+
+    **Media.** The estimator transports light between surfaces only: a scene with a
+    participating medium fails at the prepass with a ValueError that names it (render it with
+    ``volpath``), unless ``ignore_media`` is set (then media are ignored, as ``path`` does).
+
+    R_t is the *reflected* radiosity of the triangle's patch and F the point-to-triangle form
     factor: exact (Lambert's formula, finite at corners) for BVH leaves, one disk per BVH node
     farther than 4 × its bounding radius (§7). The far field holds indirect light only (gather
     rays read B_r/π; rays that hit within α are left out of the fit), so direct light is counted
@@ -79,9 +231,12 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     list of subtrees (:class:`~mi_twopass.prepass.near_field.NodeCells`, built in the prepass for
     the cells around the shading points), which sums the same nodes as a walk from the root.
 
-    Simplifications: ρ is the BSDF's diffuse reflectance (``eval_diffuse_reflectance``) at every
-    non-delta gather vertex, glossy ones included; clusters split on size alone (not on the lazy
-    "gather rays hit inside the sphere" criterion); shading points come from the first sensor.
+    Simplifications: ρ/π is the BSDF's value toward the normal at the cache vertex (textures
+    included); B_D uses the geometric normal (a shading normal that differs is ignored);
+    clusters split on size alone (not on the lazy "gather rays hit inside the sphere"
+    criterion); shading points come from the render's sensor (the first without one); only
+    the first purely diffuse vertex reached through delta vertices reads the cache (the
+    shading points are there), later ones (behind a glossy bounce) are path traced.
 
     .. pluginparameters::
 
@@ -95,7 +250,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - Default ``alpha`` as a fraction of that diagonal (default: 0.03).
      * - lambda
        - |float|
-       - Weight λ of the near-field correction B_C (default: 1; 0 gives the far field alone).
+       - Weight λ of the near-field correction B_C, in [0, 10] (default: 1, the physical
+         correction; 0 gives the far field alone; > 1 exaggerates B_C, §8.1 Fig. 12).
      * - fake_gi
        - |bool|
        - §8.1: no global solution; B_D = π · ``ambient`` and every triangle's radiosity 0, so B_C
@@ -127,7 +283,10 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - Shading points collected from the camera's view (default: 4096).
      * - max_clusters
        - |int|
-       - Most SH samples (clusters) (default: 1024).
+       - Most SH samples (clusters) (default: 1024). Where that many clusters within ``alpha``
+         cannot cover the shading points, ``alpha`` grows until they can
+         (:func:`~mi_twopass.prepass.radiance_cache.fit_clusters`; stat ``alpha``): a far field
+         stands for a cluster only if the near field reaches as far as the cluster.
      * - rays_per_cluster
        - |int|
        - Gather rays per SH sample (default: 128).
@@ -138,19 +297,25 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
      * - near_cell_rel
        - |float|
        - Cell size of the walk's start lists, in units of α (default: 1).
+     * - ignore_media
+       - |bool|
+       - Render a scene with participating media as ``path`` does, ignoring them (default:
+         false: such a scene fails at the prepass, naming the medium).
      * - max_depth, rr_depth, seed, component
        - 
-       - As every mi_twopass integrator. ``component``: "direct" = emission + direct light,
-         "indirect" = the ρ/π (B_D + λ B_C) term.
+       - As every mi_twopass integrator. ``max_depth`` ≥ 0 renders ``path`` (see above).
+         ``component``: "direct" = emission + direct light at the first non-delta vertex,
+         "indirect" = the rest (the cache term and the paths traced on).
      * - debug
        - |string|
        - "none"; "B_D" renders B_D/π, "B_C" renders λ·B_C/π (signed) at the first non-delta hit;
          "samples" marks the SH sample positions (cluster centres) in white over B_D/π.
 
-    After a render, ``stats`` adds: ``ART`` (render seconds), ``NRT`` (rays traced for GI: the
-    SH gather rays plus the radiosity particles' rays), ``NFGS`` (number of SH samples =
-    clusters), ``CS`` (cache bytes: SH field + BVH + start lists), ``bvh_visits`` (BVH nodes
-    visited), ``near_triangles`` (after the lazy split), ``split_complete``.
+    After a render, ``stats`` adds: ``cache_reads`` (cache vertices), ``ART`` (render seconds),
+    ``NRT`` (rays traced for GI: the SH gather rays plus the radiosity particles' rays),
+    ``NFGS`` (number of SH samples = clusters), ``CS`` (cache bytes: SH field + BVH + start
+    lists), ``bvh_visits`` (BVH nodes visited), ``near_triangles`` (after the lazy split),
+    ``split_complete``.
     FGO (time over a direct-only render) needs a second render: :func:`fgo`
     (``tools/radiance_cache_table.py`` prints the Table 1 columns).
     """
@@ -160,7 +325,12 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.alpha_abs = read_float(props, "alpha", 1.0, minimum=0.0, strict=True) \
             if "alpha" in props else None
         self.lam = read_float(props, "lambda", 1.0)
-        self.fake_gi = bool(props.get("fake_gi", False))
+        if not 0.0 <= self.lam <= LAMBDA_MAX:
+            raise ValueError(f"lambda={self.lam:.6g}: must be in [0, {LAMBDA_MAX:g}] (0: far field "
+                             "alone, 1: the physical near-field correction, > 1: exaggerated "
+                             "for fake GI, §8.1)")
+        self.fake_gi = read_bool(props, "fake_gi", False)
+        self.ignore_media = read_bool(props, "ignore_media", False)
         self.ambient = read_float(props, "ambient", 0.1, minimum=0.0)
         self.max_patches = read_int(props, "max_patches", 2048, minimum=1)
         self.particles_per_patch = read_int(props, "particles_per_patch", 256, minimum=1)
@@ -184,19 +354,42 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         bounding-box diagonal without points)."""
         if self.alpha_abs is not None:
             return self.alpha_abs
-        scene_diag = max(float(dr.norm(scene.bbox().extents())), 1e-30)
+        scene_diag = scene_diagonal(scene)
         return default_alpha(np.zeros((0, 3)) if points is None else points, self.alpha_rel,
                              scene_diag)
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
         """Shading points, coarse solution (radiosity), SH far field (§4.1), near-field BVH
-        (§7)."""
-        sensor = scene.sensors()[0] if len(scene.sensors()) else None
+        (§7). Only purely diffuse surfaces carry radiosity into the cache: the shading points
+        are the camera's first purely diffuse hits, and the SH gather rays and the near-field
+        triangles read 0 on every other surface (the render traces paths there)."""
+        if not self.ignore_media:
+            check_no_media(scene)
+        scale = scene_diagonal(scene)
+        unbounded = infinite_emitters_unbounded(scene)
+        if unbounded:
+            warnings.warn(
+                f"radiance_cache: the scene's bounding box ({_box_str(scene.bbox())}) does not "
+                f"hold all its shapes (Mitsuba's merged meshes report none), so the "
+                f"radiosity prepass would shoot the light of {unbounded} from a wrong sphere; "
+                "the cache is not used, the image is path traced", stacklevel=2)
+        if (not self.reads_cache or unbounded) and self.debug == "none":  # plain path tracing
+            return CacheStructure(alpha=0.0, patches=None, solution=None, cache=None, near=None,
+                                  split_complete=True, scale=scale, elements=None)
+        sensor = getattr(self, "prepass_sensor", None)
+        if sensor is None and len(scene.sensors()):
+            sensor = scene.sensors()[0]
         points = collect_shading_points(scene, sensor, self.max_points, seed) \
             if sensor is not None else None
         alpha = self.alpha(scene, None if points is None else points[0])
         patches = build_patches(scene, max_patches=self.max_patches, seed=seed)
+        shapes = scene.shapes()
+        shape_diffuse = np.array([shape_is_purely_diffuse(sh) for sh in shapes], dtype=bool)
+        # a near triangle sends R_t only from a cached patch (as cached_surface at render time)
+        patch_diffuse = shape_diffuse[np.asarray(patches.shape_index, dtype=np.int64)] \
+            & np.asarray(patches.is_diffuse, dtype=bool)
+        elements = None
         if self.fake_gi:
             solution = None
             tri_B = np.zeros((len(patches.tri_patch), 3))
@@ -206,13 +399,17 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                                        n_particles=max(1, self.particles_per_patch * patches.count),
                                        seed=seed, elements=elements)
             tri_B = np.asarray(solution.B_reflected)[np.asarray(patches.tri_patch)]
-        diffuse = np.asarray(patches.is_diffuse)[np.asarray(patches.tri_patch)]
+        diffuse = patch_diffuse[np.asarray(patches.tri_patch)] if len(patch_diffuse) else \
+            np.zeros(0, dtype=bool)
         tri_B = np.where(diffuse[:, None], tri_B, 0.0)
         cache = build_radiance_cache(scene, solution, alpha, sensor=sensor, shading_points=points,
                                      max_points=self.max_points, max_clusters=self.max_clusters,
                                      rays_per_cluster=self.rays_per_cluster, seed=seed,
                                      ambient=self.ambient if self.fake_gi else 0.0,
                                      fake_gi=self.fake_gi or sensor is None)
+        # alpha grows where max_clusters cannot cover the points with clusters that small
+        # (fit_clusters): the near field must reach as far as the far field leaves out
+        alpha = cache.alpha
         # §5: triangles near the camera's shading points split lazily until smaller than alpha
         verts, tri_n, tri_B, split_complete = split_near_triangles(
             patches.tri_vertices, patches.tri_normal, tri_B,
@@ -223,9 +420,13 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                                 points=None if points is None else points[0], alpha=alpha,
                                 cell_size=self.cell_rel * alpha)
         return CacheStructure(alpha=alpha, patches=patches, solution=solution, cache=cache,
-                              near=near, split_complete=split_complete)
+                              near=near, split_complete=split_complete, scale=scale,
+                              elements=elements)
 
     def prepass_stats(self, s):
+        if s["cache"] is None:
+            return {"prepass_rays": 0, "NRT": 0, "NFGS": 0, "CS": 0, "cache_bytes": 0,
+                    "alpha": 0.0}
         radiosity_rays = int(s["solution"].rays) if s["solution"] is not None else 0
         cache, near = s["cache"], s["near"]
         sol_bytes = int(s["solution"].nbytes) if s["solution"] is not None else 0
@@ -254,51 +455,133 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         return B_D, self.lam * dr.select(active, B_C, 0.0), dr.select(active, visits, 0)
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
-        return self.sample_cache(scene, sampler, ray, active)
+        if self.debug != "none":
+            return self.sample_debug(scene, sampler, ray, active)
+        if self.max_depth == 0:  # as path: no segment, no light
+            return mi.Spectrum(0.0), mi.Bool(True), []
+        return self.sample_path(scene, sampler, ray, active)
 
-    def sample_cache(self, scene, sampler, ray, active):
-        """The estimator of the class docstring (or a debug view), one path per lane: a delta
-        chain (:func:`~mi_twopass.integrators.pathtrace.first_nondelta_hit`), then straight-line
-        code at the gather vertex."""
-        want_direct = self.component in ("all", "direct") and self.debug == "none"
-        want_indirect = self.component in ("all", "indirect") or self.debug != "none"
+    @property
+    def reads_cache(self) -> bool:
+        """The cache term is used: ``max_depth = -1`` (the cache holds light of every path
+        length, so a path of bounded length may not end in it) and ``component`` wants it."""
+        return self.max_depth < 0 and self.want_indirect
+
+    @dr.syntax
+    def sample_path(self, scene, sampler, ray, active):
+        """The estimator of the class docstring, one path per lane: Mitsuba's ``path`` (emitter
+        sampling and BSDF sampling with MIS, Russian roulette), except that at the first
+        purely diffuse vertex reached from the camera through delta vertices only (where the
+        cache's shading points are) the light reflected by *diffuse* surfaces comes from the
+        cache, ρ/π (B_D + λ B_C), and the BSDF ray there goes on only if it meets a surface
+        that is not purely diffuse (whose outgoing light the cache does not hold)."""
+        s = self.structure
+        scale = dr.opaque(mi.Float, min(1.0, s["scale"]))  # see spawn_offset
+        max_depth = self.depth_bound
+        want_direct, want_indirect = self.want_direct, self.want_indirect
+        reads_cache = self.reads_cache and s["cache"] is not None
         ctx = mi.BSDFContext()
+
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
+            path_start(ray)
+        camera_chain = mi.Bool(True)  # only delta vertices so far: a diffuse hit reads the cache
+        after_cache = mi.Bool(False)  # the previous vertex read the cache
+        n_implicit = mi.UInt32(0)
+        n_explicit = mi.UInt32(0)
+        n_cache = mi.UInt32(0)
+        visits = mi.UInt32(0)
+        active = mi.Bool(active)
+
+        while dr.hint(active, label="radiance_cache"):
+            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
+            n_implicit += dr.select(active & ~prev_bsdf_delta, 1, 0)
+
+            # Emission, MIS-weighted against the emitter sampling of the previous vertex.
+            Le = emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
+
+            bsdf = si.bsdf(ray)
+            flags = bsdf.flags()
+            diffuse = si.is_valid() & purely_diffuse(flags)
+            # The BSDF ray of a cache vertex that meets a diffuse surface with a radiosity patch
+            # ends here: the light that surface reflects is the cache term (its emission was
+            # just counted). Elsewhere (glossy, glass, a shape without patches) it goes on.
+            in_cache = mi.Bool(False)
+            if reads_cache:
+                in_cache = cached_surface(s["patches"], s["elements"], si, after_cache & diffuse)
+            active_next = active & si.is_valid() & ~in_cache & (depth + 1 < max_depth)
+            smooth = mi.has_flag(flags, mi.BSDFFlags.Smooth)
+            first_vertex = n_nondelta == 0
+            if not want_indirect:  # "direct": nothing past the first non-delta vertex's light
+                active_next &= first_vertex | ~smooth
+
+            # Emitter sampling (MIS), at every non-delta vertex as in path.
+            Ld, cast = emitter_sample(scene, si, bsdf, ctx, sampler.next_2d(), scale,
+                                      active_next & smooth)
+            n_explicit += dr.select(cast, 1, 0)
+            L += by_component(beta * Ld, first_vertex, want_direct, want_indirect)
+
+            # The cache: light reflected by diffuse surfaces toward this diffuse vertex.
+            read = active_next & camera_chain & diffuse & reads_cache
+            if reads_cache:
+                Lc, v = self.cache_term(si, ray, bsdf, ctx, read)
+                L += beta * Lc
+                n_cache += dr.select(read, 1, 0)
+                visits += v
+
+            # BSDF sampling.
+            bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(),
+                                          active_next)
+            is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+            n_nondelta += dr.select(active_next & ~is_delta, 1, 0)
+            ray = spawn_ray(si, si.to_world(bs.wo), scale)
+            beta *= bsdf_weight
+            eta *= bs.eta
+            prev_si = dr.detach(si, True)
+            prev_bsdf_pdf = bs.pdf
+            prev_bsdf_delta = is_delta
+            camera_chain &= ~smooth
+            after_cache = read
+            depth[si.is_valid()] += 1
+
+            # Russian roulette (as Mitsuba's path), from rr_depth on.
+            beta, survive = russian_roulette(beta, eta, depth >= self.rr_depth, sampler.next_1d())
+            active = active_next & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
+
+        self.count("implicit_rays", n_implicit)
+        self.count("explicit_rays", n_explicit)
+        self.count("cache_reads", n_cache)
+        self.count("bvh_visits", visits)
+        return L, mi.Bool(True), []
+
+    @staticmethod
+    def viewer_normal(si, ray):
+        """The geometric normal on the side the ray arrives from (the shading points' side)."""
+        return dr.select(dr.dot(si.n, ray.d) > 0, -si.n, si.n)
+
+    def cache_term(self, si, ray, bsdf, ctx, active):
+        """ρ/π · max(B_D + λ B_C, 0) at a purely diffuse vertex (irradiance is never negative:
+        where B_C over-corrects, §6, the sum is clamped). ρ/π is the BSDF's value toward the
+        normal on the viewer's side, so the back of a one-sided diffuse surface is black, as
+        its BSDF is, and textures are read at ``si``. → ``(value, BVH nodes visited)``."""
+        B_D, B_C, visits = self.irradiance_terms(si, self.viewer_normal(si, ray), active)
+        up = mi.Vector3f(0.0, 0.0, dr.select(mi.Frame3f.cos_theta(si.wi) < 0, -1.0, 1.0))
+        f = bsdf.eval(ctx, si, up, active)  # = ρ/π · |cos| with cos = 1
+        return dr.select(active, f * dr.maximum(B_D + B_C, 0.0), 0.0), visits
+
+    def sample_debug(self, scene, sampler, ray, active):
+        """Debug views at the first non-delta hit (delta surfaces followed as a path)."""
         max_delta = MAX_DELTA_DEPTH if self.max_depth < 0 else min(self.max_depth, MAX_DELTA_DEPTH)
-        si, ray, beta, Le, gather = first_nondelta_hit(scene, sampler, ray, active, max_delta)
-        L = Le if want_direct else mi.Spectrum(0.0)
-        bsdf = si.bsdf(ray)
-
-        # Direct light at the gather vertex: Mitsuba's emitter sampling ...
-        Ld, active_em = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(), gather)
-        # ... and one BSDF ray that picks up emission, both MIS-weighted (power heuristic).
-        bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), gather)
-        active_bsdf = gather & (bs.pdf > 0) & want_direct
-        si_b = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), active_bsdf)
-        is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        Le_b = emission_mis(scene, si_b, si, bs.pdf, is_delta, active_bsdf)
-        if want_direct:
-            L += beta * Ld
-            L += dr.select(active_bsdf, beta * bsdf_weight * Le_b, 0.0)
-        self.count("explicit_rays", active_em)
-        self.count("implicit_rays", active_bsdf)
-
-        # Indirect light from the cache: ρ/π (B_D + λ B_C) (eq. 2).
-        n = dr.select(dr.dot(si.n, ray.d) > 0, -si.n, si.n)
-        B_D, B_C, visits = self.irradiance_terms(si, n, gather)
+        si, ray, beta, _, gather = first_nondelta_hit(scene, sampler, ray, active, max_delta)
+        B_D, B_C, visits = self.irradiance_terms(si, self.viewer_normal(si, ray), gather)
         self.count("bvh_visits", visits)
         if self.debug == "B_D":
-            L += dr.select(gather, beta * B_D / dr.pi, 0.0)
+            value = B_D / dr.pi
         elif self.debug == "B_C":
-            L += dr.select(gather, beta * B_C / dr.pi, 0.0)
-        elif self.debug == "samples":
-            L += dr.select(gather, beta * dr.select(self.near_sample(si.p, gather),
-                                                   mi.Color3f(1.0), B_D / dr.pi), 0.0)
-        elif want_indirect:
-            rho = bsdf.eval_diffuse_reflectance(si, gather)
-            # irradiance is never negative: where B_C over-corrects (the visibility assumption,
-            # §6) the sum is clamped at 0
-            L += dr.select(gather, beta * rho / dr.pi * dr.maximum(B_D + B_C, 0.0), 0.0)
-        return L, mi.Bool(True), []
+            value = B_C / dr.pi
+        else:  # "samples"
+            value = dr.select(self.near_sample(si.p, gather), mi.Color3f(1.0), B_D / dr.pi)
+        return dr.select(gather, beta * value, 0.0), mi.Bool(True), []
 
     def near_sample(self, p, active):
         """Debug "samples": within 0.2 α of an SH sample position (a cluster centre)."""

@@ -55,6 +55,7 @@ import numpy as np
 
 from .. import sh
 from ..form_factor import point_to_disk_approx, polygon_form_factor
+from .radiance_cache import scene_diagonal
 
 #: §7: a node farther than this many bounding radii is summed as a whole
 OPEN_FACTOR = 4.0
@@ -332,17 +333,6 @@ class NodeCells:
         count = dr.gather(mi.UInt32, t["cell_count"], cid, inside)
         return dr.select(inside, first, 0), dr.select(inside, count, 1)
 
-    def start_lists_numpy(self, x):
-        """numpy: the listed nodes of the cell of each point ``x`` (n, 3) (for tests)."""
-        x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
-        q = np.floor((x - self.lo) / self.cell)
-        inside = np.all((q >= 0) & (q < self.res), axis=1)
-        qi = np.clip(q, 0, self.res - 1).astype(np.int64)
-        cid = (qi[:, 0] * self.res[1] + qi[:, 1]) * self.res[2] + qi[:, 2]
-        f = np.where(inside, self.first[cid], 0)
-        k = np.where(inside, self.count[cid], 1)
-        return [self.nodes[a:a + b] for a, b in zip(f, k)]
-
 
 def _far(B_D, L_F, d):
     """The far-field irradiance a near triangle replaces: B_D (eq. 6) or π·L_F(d/|d|) (eq. 5)."""
@@ -605,7 +595,7 @@ def buried_triangles(scene, verts, tri_normal):
     dirs = [n] + [np.cos(th) * n + np.sin(th) * (np.cos(p) * s + np.sin(p) * t)
                   for p in (0.0, 2 * np.pi / 3, 4 * np.pi / 3)]
     d = np.concatenate(dirs)
-    scale = max(1e-6, float(dr.norm(scene.bbox().extents())))
+    scale = scene_diagonal(scene)  # offsets relative to the scene's size
     o = np.tile(c, (4, 1)) + 1e-5 * scale * np.tile(n, (4, 1))
     f = lambda a: mi.Vector3f(*(mi.Float(np.ascontiguousarray(a[:, k], dtype=np.float32))  # noqa
                                 for k in range(3)))

@@ -5,18 +5,24 @@ Steps (:func:`build_radiance_cache`):
 
 1. **Shading points** (§4.1 "we know in advance all the shading points"): camera rays through a
    regular grid of film positions, followed through delta (specular) bounces to the first
-   non-delta hit (:func:`collect_shading_points`).
+   non-delta hit, kept where that surface is purely diffuse (:func:`collect_shading_points`):
+   the render reads the cache only there.
 2. **Clusters**: starting from one cluster of all points, a cluster whose bounding sphere
    (about its centroid) has a radius larger than ``alpha`` is split in two by 2-means, until every
-   cluster fits or ``max_clusters`` is reached (:func:`cluster_points`; numpy bookkeeping). The
+   cluster fits or ``max_clusters`` is reached (:func:`cluster_points`; numpy bookkeeping); where
+   the budget is reached first, alpha grows until every cluster fits (:func:`fit_clusters`), and
+   the cache's ``alpha`` (the near-field radius) is that one. The
    paper's lazier criterion (split only where gather rays hit geometry inside the sphere) is not
    implemented: flat regions get clusters of size alpha too.
 3. **Gather** (eq. 4): per cluster, ``rays_per_cluster`` rays from shading points of the
    cluster drawn at random, uniform over each point's hemisphere, read the coarse solution at the
    hit: the *reflected* radiance B_r/π of the radiosity patch (indirect light only; direct light is
-   Mitsuba's emitter sampling at render time). Rays that hit geometry closer than ``alpha`` are
-   dropped from the fit: that light is the near field, counted by B_C. A miss reads 0 (an
-   environment emitter is direct light).
+   Mitsuba's emitter sampling at render time), and only where the surface hit is *cached*
+   (:func:`cached_surface`: purely diffuse, its patch not cut by geometry). A ray that meets
+   glass, metal, a glossy or mixed surface reads 0: the render traces that light (L S+ D
+   included) and must not find it in the fit as well. Rays that hit geometry closer than
+   ``alpha`` are dropped from the fit: that light is the near field, counted by B_C. A miss
+   reads 0 (an environment emitter is direct light).
 4. **Fit**: :func:`~mi_twopass.sh.project_least_squares` (Tikhonov-regularised, so one sample or
    a few directions give a smooth, finite fit) → 9 coefficients × RGB per cluster.
 
@@ -64,9 +70,82 @@ def _count(mask) -> int:
     return int(np.asarray(dr.count(mask)).reshape(-1)[0])
 
 
+#: BSDF lobes that make a surface "not purely diffuse": its outgoing radiance is not ρ/π × its
+#: irradiance, so neither the cache nor the radiosity solution may stand for it
+NOT_DIFFUSE = (int(mi.BSDFFlags.Null) | int(mi.BSDFFlags.DiffuseTransmission)
+               | int(mi.BSDFFlags.Glossy) | int(mi.BSDFFlags.Delta)
+               | int(mi.BSDFFlags.Delta1D))
+
+
+def purely_diffuse(flags):
+    """Whether BSDF ``flags`` (a Python int, or ``mi.UInt32`` per lane) describe a purely
+    diffuse reflector: a diffuse-reflection lobe and no glossy, delta, transmission or null lobe
+    (``diffuse``, ``twosided`` diffuse; not ``plastic``, ``blendbsdf``, ``roughconductor``,
+    ``thindielectric``, ``mask``...)."""
+    if isinstance(flags, (int, mi.BSDFFlags)):
+        flags = int(flags)
+        return bool(flags & int(mi.BSDFFlags.DiffuseReflection)) and not flags & NOT_DIFFUSE
+    flags = mi.UInt32(flags)
+    return ((flags & int(mi.BSDFFlags.DiffuseReflection)) != 0) & ((flags & NOT_DIFFUSE) == 0)
+
+
+def cached_surface(patches, elements, si, active=True):
+    """``mi.Bool``: the cache holds the light reflected at ``si`` toward its ray — a purely
+    diffuse surface (:func:`purely_diffuse`) whose patch (and element, with ``elements``) on the
+    side hit is diffuse and not cut by geometry (``is_diffuse``, see
+    :mod:`mi_twopass.scene.patches`). The SH gather reads the radiosity only there, and the
+    render's path ends only there; everywhere else (glossy, glass, a split patch, a shape
+    without patches, the black back of a one-sided surface) the path is traced on."""
+    ok = mi.Bool(active) & si.is_valid()
+    ok &= purely_diffuse(si.bsdf().flags())
+    ok &= patches.is_diffuse_at(si, ok)
+    if elements is not None:
+        ok &= elements.is_diffuse_at(si, ok)
+    return ok
+
+
+def scene_bounds(scene):
+    """``(lo (3,), hi (3,))`` of every shape of ``scene``, numpy; None when there is nothing.
+
+    Not ``scene.bbox()`` alone: in Mitsuba 3.9.1 the mesh that the loader makes by merging
+    shapes that share a BSDF reports an invalid ``bbox()``, so a scene whose walls were merged
+    has a scene bounding box of its other shapes only (or none at all); such meshes are
+    bounded by their vertices here."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+
+    def grow(a, b):
+        nonlocal lo, hi
+        a, b = np.asarray(a, dtype=np.float64).ravel(), np.asarray(b, dtype=np.float64).ravel()
+        if a.size == 3 and b.size == 3 and np.all(np.isfinite(a)) and np.all(np.isfinite(b)) \
+                and np.all(a <= b):
+            lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+
+    box = scene.bbox()
+    if box.valid():
+        grow(box.min, box.max)
+    for shape in scene.shapes():
+        if shape.bbox().valid() or not shape.is_mesh():
+            continue
+        v = np.asarray(shape.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+        if len(v):
+            grow(v.min(axis=0), v.max(axis=0))
+    return (lo, hi) if np.all(lo <= hi) else None
+
+
+def scene_diagonal(scene) -> float:
+    """The bounding-box diagonal of every shape of ``scene`` (:func:`scene_bounds`; 1 where
+    there is none or it is 0): the length every offset of the prepass and the render is
+    relative to."""
+    bounds = scene_bounds(scene)
+    diag = float(np.linalg.norm(bounds[1] - bounds[0])) if bounds is not None else 0.0
+    return diag if np.isfinite(diag) and diag > 0 else 1.0
+
+
 def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int = 0):
     """First non-delta hits of camera rays through a jittered grid of ≤ ``max_points`` film
-    positions → ``(p (n, 3), normal (n, 3) facing the viewer, rays traced)`` numpy."""
+    positions, kept where the surface is purely diffuse (the only vertices that read the cache;
+    a camera ray that first meets a glossy or mixed surface gives no point) → ``(p (n, 3),
+    normal (n, 3) facing the viewer, rays traced)`` numpy."""
     if sensor is None:
         sensor = scene.sensors()[0]
     size = np.asarray(sensor.film().crop_size(), dtype=np.int64)
@@ -85,6 +164,7 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     found = dr.full(mi.Bool, False, w * h)
     p = dr.zeros(mi.Point3f, w * h)
     nrm = dr.zeros(mi.Vector3f, w * h)
+    eps = 1e-5 * scene_diagonal(scene)
     rays = 0
     for _ in range(MAX_DELTA_BOUNCES):  # a few bounces over the whole batch, not per lane
         rays += _count(active)
@@ -93,13 +173,16 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
         bsdf = si.bsdf(ray)
         smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         stop = active & smooth
+        keep = stop & purely_diffuse(bsdf.flags())
         n = dr.select(dr.dot(si.n, ray.d) > 0, -si.n, si.n)
-        p[stop] = si.p
-        nrm[stop] = n
-        found |= stop
+        p[keep] = si.p
+        nrm[keep] = n
+        found |= keep
         bs, _ = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active & ~stop)
         active &= ~stop & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        ray = si.spawn_ray(si.to_world(bs.wo))
+        d = si.to_world(bs.wo)
+        side = dr.select(dr.dot(si.n, d) >= 0, 1.0, -1.0)
+        ray = mi.Ray3f(si.p + si.n * (side * (eps + 1e-6 * dr.max(dr.abs(si.p)))), d)
         if _count(active) == 0:
             break
     keep = np.asarray(found)
@@ -154,6 +237,51 @@ def cluster_points(p, alpha: float, max_clusters: int = 256, seed: int = 0):
             continue
         todo += [ids[lab == 0], ids[lab == 1]]
     return done
+
+
+def _fits(clusters, p, alpha) -> bool:
+    return all(np.linalg.norm(p[ids] - p[ids].mean(axis=0), axis=1).max() <= alpha * (1 + 1e-9)
+               for ids in clusters)
+
+
+def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0):
+    """:func:`cluster_points` with every cluster within ``alpha``, growing alpha where
+    ``max_clusters`` cannot cover the points with clusters that small → ``(alpha', clusters)``
+    with alpha' ≥ alpha the smallest size found (doubling, then 6 bisection steps) at which the
+    budget suffices.
+
+    Why alpha grows rather than the clusters alone: the far field of a cluster, fitted from
+    rays of its points that travel farther than alpha, stands for every point of the cluster
+    only if the cluster is no larger than alpha (parallax of the geometry between alpha and
+    the cluster's size is in no term). Clusters left larger by the budget made the cache 40 %
+    dark on the indirect light of a box lit by a 5 mm sphere (64 clusters for 138 needed);
+    with alpha grown to fit them, 0 ± 3 %. alpha is also the near-field radius (§5), so the
+    caller must use alpha' there."""
+    p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+    alpha = float(alpha)
+    clusters = cluster_points(p, alpha, max_clusters, seed)
+    if len(p) == 0 or _fits(clusters, p, alpha):
+        return alpha, clusters
+    lo, hi = alpha, 2.0 * alpha
+    extent = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+    best = None
+    for _ in range(64):
+        c = cluster_points(p, hi, max_clusters, seed)
+        if _fits(c, p, hi):
+            best = c
+            break
+        lo, hi = hi, 2.0 * hi
+        if hi > 4.0 * extent + alpha:  # one cluster always fits its own extent
+            best = cluster_points(p, hi, max_clusters, seed)
+            break
+    for _ in range(6):
+        mid = float(np.sqrt(lo * hi))
+        c = cluster_points(p, mid, max_clusters, seed)
+        if _fits(c, p, mid):
+            hi, best = mid, c
+        else:
+            lo = mid
+    return hi, best
 
 
 class ClusterGrid:
@@ -392,8 +520,9 @@ class RadianceCache:
 def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=128, seed=0,
                      reg=sh.DEFAULT_REG):
     """Eq. 4: per cluster, ``rays_per_cluster`` gather rays from random shading points of the
-    cluster (uniform hemisphere) read B_r/π of the patch hit; hits closer than ``alpha`` are left
-    out (near field). → ``(coeffs (K, 9, 3), rays traced)``."""
+    cluster (uniform hemisphere) read B_r/π of the patch hit where it is cached (0 elsewhere);
+    hits closer than ``alpha`` are left out (near field). Ray origins are offset relative to
+    the scene's size. → ``(coeffs (K, 9, 3), rays traced)``."""
     K = len(clusters)
     coeffs = np.zeros((K, sh.SH_COUNT, 3))
     if K == 0 or rays_per_cluster < 1:
@@ -413,13 +542,15 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     s /= np.linalg.norm(s, axis=1, keepdims=True)
     t = np.cross(nn, s)
     d = (r * np.cos(phi))[:, None] * s + (r * np.sin(phi))[:, None] * t + z[:, None] * nn
-    eps = 1e-4 * max(1e-6, float(dr.norm(scene.bbox().extents()))) + 1e-5 * np.abs(o).max()
+    eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(o).max()
     f = lambda a: mi.Vector3f(*(mi.Float(a[:, k].astype(np.float32)) for k in range(3)))  # noqa
     ray = mi.Ray3f(mi.Point3f(f(o + eps * nn)), f(d))
     si = scene.ray_intersect(ray)
-    valid = si.is_valid()
+    # only a cached surface sends B_r/π: on any other the render traces the path on
+    valid = cached_surface(solution.patches, solution.elements, si, si.is_valid())
     L = solution.reflected_radiance(si, valid)
-    dist = np.asarray(dr.select(valid, si.t, np.inf))
+    L = dr.select(valid, L, 0.0)
+    dist = np.asarray(dr.select(si.is_valid(), si.t, np.inf))
     L = np.asarray(L)
     L = L.reshape(3, -1).T if L.shape[0] == 3 and L.ndim == 2 else L
     far = ~np.isfinite(dist) | (dist >= alpha)
@@ -444,11 +575,12 @@ def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
     if shading_points is None:
         shading_points = collect_shading_points(scene, sensor, max_points, seed)
     p, n, shading_rays = shading_points
-    clusters = cluster_points(p, alpha, max_clusters, seed)
-    coeffs, rays = gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster, seed)
+    alpha, clusters = fit_clusters(p, alpha, max_clusters, seed)
     center = np.array([p[ids].mean(axis=0) for ids in clusters]).reshape(-1, 3)
     radius = np.array([np.linalg.norm(p[ids] - p[ids].mean(axis=0), axis=1).max()
                        for ids in clusters]).reshape(-1)
+    coeffs, rays = gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster,
+                                    seed)
     cache = RadianceCache(center, radius, coeffs, float(alpha), amb, p, rays, shading_rays)
     cache._tables()
     return cache
