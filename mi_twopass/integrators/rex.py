@@ -11,7 +11,8 @@ import drjit as dr
 import mitsuba as mi
 
 from .. import units
-from ..prepass.rex import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes
+from ..prepass.rex import (KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes,
+                           spawn_ray)
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .pathtrace import (by_component, emission_mis, emitter_sample_mis, path_start,
                         russian_roulette)
@@ -33,29 +34,44 @@ class RexIntegrator(TwoPassIntegrator):
     Adaptive radiosity textures (:monosp:`rex`)
     --------------------------------------------
 
-    Heckbert's three-pass bidirectional ray tracer (SIGGRAPH 1990). Every purely diffuse surface
-    carries *rexes*: adaptive quadtree histograms over its parameter square (one per analytic
-    shape over its (u, v); one per triangle of a mesh, over its barycentrics; one per side of a
-    two-sided BSDF) that collect the flux of photons shot from the lights::
+    Heckbert's three-pass bidirectional ray tracer (SIGGRAPH 1990). Every Lambertian surface
+    (``diffuse``, and ``twosided`` / ``blendbsdf`` made only of it) carries *rexes*: adaptive
+    quadtree histograms over its parameter square (one per analytic shape over its (u, v); one
+    per triangle of a mesh, over its barycentrics; one per side of a two-sided BSDF) that
+    collect the flux of photons shot from the lights::
 
         size pass   eye rays (through specular/glossy bounces) record each diffuse surface's
                     pixel preimage size in (u, v): the finest bucket worth keeping there
         light pass  photons leave every light through an adaptive light quadtree, follow
                     specular bounces (Fresnel-weighted, TransportMode.Importance), deposit their
                     flux at every diffuse hit and continue diffusely (Russian roulette)
-        rex build   buckets split while they hold more than split_limit photons (down to the
-                    size-pass cap); E = ΣΦ / area, reflected radiance ρ·E/π
+        rex build   buckets split while they hold more than split_limit photons (past the
+                    size-pass cap, only with 4× more per level); E = ΣΦ / area, reflected
+                    radiance ρ·E/π
         eye pass    L = Le + ρ(x)·E(x)/π at the first diffuse hit x reached through specular
                     bounces (glossy vertices are path traced with emitter sampling and MIS)
 
     **Paths.** The light pass continues photons diffusely after each deposit (the simple
     alternative to the paper's §4 progressive shooting from bright rexes), so the rexes hold all
     of L(S|D)*D: the image covers L(S*D)*S*E and converges to Mitsuba's ``path`` as the photon
-    count grows and the buckets shrink (max_depth = −1). Its bias is the blur of a bucket:
-    irradiance averaged over a bucket and interpolated bilinearly between bucket centres
-    (measured on a 16×16 Cornell box with 4M photons: ≤ 1.2 % on 4×4-pixel blocks, < 0.5 % on
-    most; on ``caustic.xml`` at 64×64 the relMSE floor is ≈ 0.004 at 4M photons, mostly the
-    one-bucket blur of the caustic's edges).
+    count grows and the buckets shrink. Its bias is the blur of a bucket: irradiance averaged
+    over a bucket and interpolated bilinearly between bucket centres (measured on a 16×16
+    Cornell box with 4M photons: ≤ 1.2 % on 4×4-pixel blocks, < 0.5 % on most; on
+    ``caustic.xml`` at 64×64 the relMSE floor is ≈ 0.004 at 4M photons, mostly the one-bucket
+    blur of the caustic's edges). On an image *mean* the blur largely cancels: we state 1 % at
+    65536 photons on 16×16 images (``tests/integrators/test_rex_correctness.py`` allows that
+    much beyond the noise; measured there within it), +1.1 % on veach-bidir at 32×24 with the
+    default photons, +0.5 % at 1M. A finite ``max_depth`` means what it means for ``path`` (at most
+    max_depth segments; 1: emitters seen directly; 0: black): a bucket keeps one irradiance per
+    eye depth d < min(max_depth − 1, 8), from the photons of at most max_depth − 2 − d
+    bounces; rex surfaces deeper on the eye path are path traced.
+
+    **Size-pass cap.** The cap stops splitting where a finer bucket would be smaller than
+    ``bucket_pixels`` on screen, but it is soft: past it a bucket still splits when it holds
+    more than split_limit·4^(levels past the cap) photons. A hard cap kept surfaces that are a
+    dot on screen, or that no size-pass ray met, at one bucket whatever the photon count; the
+    camera then saw the bucket's average where it saw only part of it (the rim of a lamp shade
+    in veach-bidir, its bulb alone: 1.26× ``path``, no better with 4× the photons).
 
     **Light quadtree.** Per light, a quadtree over one 2-D factor of ``Emitter.sample_ray``'s
     primary samples — the emission direction of point, spot and area lights and of
@@ -64,7 +80,7 @@ class RexIntegrator(TwoPassIntegrator):
     land more than ``light_split_dist`` apart, and only where the eye sees one of the two hits
     (silhouettes, shadow and caustic edges); a restricted quadtree, as in the paper. It is 2-D,
     not the 4-D tree §3.3.1 asks for area lights: the position on an area light (and on the
-    environment's bounding sphere) is stratified, not adapted. Every leaf then shoots four
+    environment's bounding disk) is stratified, not adapted. Every leaf then shoots four
     fresh photons, one per quadrant (the tree depends only on the pilot rays, so the estimate
     stays unbiased: a test checks the flux through a square against I·Ω).
 
@@ -72,8 +88,11 @@ class RexIntegrator(TwoPassIntegrator):
     final shoot keeps its photon records and the quadtrees are built from them, so every bucket
     holds exactly the photons that fell in it (the paper's §5 suggestion). Buckets partly buried
     under closed objects (a box on a floor) divide by their open area only (4 probe points per
-    leaf), so no dark seam runs along contact lines. Rexes do not interpolate across mesh
-    triangles and are not 2:1-balanced (the bilinear lookup handles leaves of any size).
+    leaf), so no dark seam runs along contact lines. Only the back of a one-sided surface
+    buries a point: a two-sided or transmissive surface's normal says nothing about inside and
+    outside (veach-bidir's room of two-sided walls with outward normals read as "inside", and
+    was 1.8× too bright). Rexes do not interpolate across mesh triangles and are not
+    2:1-balanced (the bilinear lookup handles leaves of any size).
 
     **Direct light.** ``direct="rex"`` reads direct light from the rexes too (a pure
     two-pass image); ``direct="shadow"`` computes it with shadow rays (Mitsuba's emitter sampling
@@ -87,14 +106,34 @@ class RexIntegrator(TwoPassIntegrator):
     long times path tracing, unbiased, wins.
 
     **Cost.** Photons cost about one ray per bounce; the prepass of 1M photons takes 1–1.7 s on
-    two CPU cores (LLVM), and its records (25 bytes per deposit) are freed after the build. The
-    rexes themselves take 32 bytes per node (``cache_bytes``).
+    two CPU cores (LLVM), and its records (26 bytes per deposit) are freed after the build. The
+    rexes themselves take 8 + 24 bytes per node and depth class (``cache_bytes``).
 
-    **Limits.** Glossy and other non-diffuse surfaces carry no rex: the eye pass path-traces
-    through them. A finely tessellated mesh gets one rex per triangle, so each collects few
-    photons and the image is mottled where indirect light dominates (``window_interior.xml``:
-    many more photons, or a larger ``split_limit``, are needed there). The size pass ignores
-    the focusing of curved mirrors and lenses (their buckets may split finer than needed).
+    **Emission and scale.** Area lights emit from ``sample_position`` with cosine-weighted
+    directions, infinite emitters (constant, envmap, sunsky, directional) from a disk facing
+    their ``sample_direction`` on the sphere around the geometry's own bounds (Mitsuba 3.9's
+    ``scene.bbox()`` leaves out rectangles it merged into one mesh: a room of rectangles
+    sharing a BSDF had photons start inside it, 1.98× ``path``), the rest from Mitsuba's
+    ``sample_ray``. A photon's weight at a non-delta bounce is the BSDF evaluated with the new
+    direction on the eye side (the adjoint of what ``path`` integrates), exact for BSDFs that
+    are not symmetric too (normal and bump maps: the shading-normal correction with the
+    surface's own normal left photons off a normal-mapped wall 4.5 % too bright). The rays rex
+    spawns (photons, eye continuations) are offset relative to the scene's size, not by
+    Mitsuba's absolute ≥ 89 µm: the image of a 0.2 mm Cornell box is that of the 2 m one
+    (Mitsuba's own ``path`` gives 0.90× of it). The eye pass's shadow rays (the shared
+    ``pathtrace.emitter_sample_mis``) still start at Mitsuba's offset, and lose the shadows
+    of occluders closer than that (``direct="rex"`` casts none). When ``scene.bbox()`` misses
+    merged rectangles and an infinite emitter is present, Mitsuba's emitter sampling also ends
+    shadow rays short of distant walls (``path`` leaks as well); the prepass warns then.
+
+    **Limits.** Non-Lambertian surfaces (glossy, delta, mixed lobes, bumpmap and normalmap,
+    which tilt the shading normal) and instanced shapes carry no rex: the eye pass path-traces
+    them (emitter sampling, BSDF sampling, MIS) and the photons bounce off them. Participating
+    media are refused with a ValueError at prepass time (use ``volpath``). A finely tessellated
+    mesh gets one rex per triangle, so each collects few photons and the image is mottled where
+    indirect light dominates (``window_interior.xml``: many more photons, or a larger
+    ``split_limit``, are needed there). The size pass ignores the focusing of curved mirrors
+    and lenses (their buckets may split finer than needed).
 
     .. pluginparameters::
 
@@ -127,12 +166,11 @@ class RexIntegrator(TwoPassIntegrator):
      * - light_split_dist
        - |float|
        - Neighbouring light rays landing farther apart than this fraction of the scene's
-         bounding-box diagonal split their node (default: 0.05).
+         bounding-box diagonal (of its shapes' own bounds) split their node (default: 0.05).
      * - max_depth, rr_depth, seed, component
        -
-       - As every mi_twopass integrator: path length (-1: unbounded; a finite value limits each
-         photon to max_depth − 1 segments and the eye path to max_depth, exact only when the
-         first diffuse vertex is seen directly), Russian roulette start (eye and photon paths),
+       - As every mi_twopass integrator: path length (-1: unbounded; finite: at most max_depth
+         segments in all, as ``path``), Russian roulette start (eye and photon paths),
          prepass seed offset, "all" / "direct" / "indirect" (direct: emission and direct light
          at the first non-specular vertex).
      * - debug
@@ -148,8 +186,9 @@ class RexIntegrator(TwoPassIntegrator):
     continuation and shadow rays of the eye pass), ``size_seconds``, ``light_seconds``,
     ``rex_build_seconds`` and ``cache_bytes``.
 
-    Every emitter Mitsuba can ``sample_ray`` is handled (point, spot, area, directional,
-    constant, envmap, ...); a scene without emitters renders black.
+    Every emitter Mitsuba can ``sample_ray`` (or, infinite, ``sample_direction``) is handled
+    (point, spot, area, directional, constant, envmap, sunsky, ...); a scene without emitters
+    renders black.
     """
 
     def _read_props(self, props):
@@ -203,6 +242,8 @@ class RexIntegrator(TwoPassIntegrator):
 
     # -- eye pass ---------------------------------------------------------------------------
     def sample(self, scene, sampler, ray, medium=None, active=True):
+        if self.max_depth == 0:  # as Mitsuba's path: a path of no segment carries no light
+            return mi.Spectrum(0.0), mi.Bool(True), []
         if self.debug != "none":
             return self.sample_debug(scene, sampler, ray, active)
         return self.sample_eye(scene, sampler, ray, active)
@@ -211,13 +252,18 @@ class RexIntegrator(TwoPassIntegrator):
     def sample_eye(self, scene, sampler, ray, active):
         """Eye pass (§3.4.3): specular chains from the eye, rex radiance at the first diffuse hit.
 
-        Delta vertices are followed; glossy (non-rex, non-delta) vertices are path traced with
-        emitter sampling and MIS; at a rex vertex x the path ends with ρ(x)·E(x)/π, plus (with
-        ``direct="shadow"``) emitter sampling and one BSDF ray that only looks for emitters."""
+        Delta vertices are followed; other non-rex vertices (glossy, mixed, textured normals,
+        instances) are path traced with emitter sampling and MIS; at a rex vertex x the path
+        ends with ρ(x)·E(x)/π, plus (with ``direct="shadow"``) emitter sampling and one BSDF
+        ray that only looks for emitters. Under a finite max_depth the rex read at eye depth d
+        holds only photons that keep the whole path within max_depth segments (its depth
+        class); vertices deeper than the classes are path traced."""
         pre = self.structure
         tables, rexes = pre.tables, pre.rexes
         shadow = self.direct == "shadow"
         max_depth = self.depth_bound
+        finite = self.max_depth > 0
+        classes = rexes.classes
         want_direct = self.want_direct
         want_indirect = self.want_indirect
         ctx = mi.BSDFContext()
@@ -242,6 +288,8 @@ class RexIntegrator(TwoPassIntegrator):
             shape = tables.shape_index(si, valid)
             kind = dr.gather(mi.UInt32, tables.d_kind, shape, valid & (shape != NO_SHAPE))
             on_rex_surface = valid & (shape != NO_SHAPE) & (kind != KIND_NONE)
+            if finite:
+                on_rex_surface &= depth < classes
             rex, uv, at_rex = tables.locate(si, on_rex_surface)
             first = n_nondelta == 0
             bsdf = si.bsdf(ray)
@@ -251,7 +299,8 @@ class RexIntegrator(TwoPassIntegrator):
             if not shadow:
                 w_d = dr.select(first, 1.0 if want_direct else 0.0, 1.0 if want_indirect else 0.0)
             w_i = 1.0 if want_indirect else 0.0
-            E, _, _ = rexes.irradiance(rex, uv, at_rex, w_direct=w_d, w_indirect=w_i)
+            E, _, _ = rexes.irradiance(rex, uv, at_rex, w_direct=w_d, w_indirect=w_i,
+                                       cls=depth if finite else 0)
             rho = bsdf.eval_diffuse_reflectance(si, at_rex)
             L += dr.select(at_rex, beta * units.reflected_radiance(rho, E), 0.0)
 
@@ -271,7 +320,7 @@ class RexIntegrator(TwoPassIntegrator):
             bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(go), sampler.next_2d(go), go)
             is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             n_nondelta += dr.select(go & ~is_delta, mi.UInt32(1), mi.UInt32(0))
-            ray = si.spawn_ray(si.to_world(bs.wo))
+            ray = spawn_ray(si, si.to_world(bs.wo), tables.scale)
             beta = dr.select(go, beta * bsdf_weight, beta)
             eta = dr.select(go, eta * bs.eta, eta)
             prev_si = dr.detach(si, True)
@@ -309,7 +358,7 @@ class RexIntegrator(TwoPassIntegrator):
             value = self.debug_value(rexes, si, bsdf, rex, uv, at_rex)
             result[at_rex] = beta * value
             bs, w = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), valid & ~at_rex)
-            ray = si.spawn_ray(si.to_world(bs.wo))
+            ray = spawn_ray(si, si.to_world(bs.wo), tables.scale)
             beta *= w
             depth += 1
             active = valid & ~at_rex & (bs.pdf > 0) & (dr.max(beta) > 0) & (depth < 64)

@@ -12,12 +12,14 @@ The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
    parameter space (ray differentials spread over the path length, projected on the tangent plane,
    divided by the parameterisation's Jacobian |∂p/∂u × ∂p/∂v|). The finest level at which a rex
    bucket is still ≥ ``bucket_pixels`` pixels becomes the bucket's *cap*, per 8×8 size cell of an
-   analytic shape and per triangle of a mesh. Regions no eye ray saw are capped at level 0 (they
-   only feed interreflection, which travels with the photons, never through a rex).
+   analytic shape and per triangle of a mesh. Regions no eye ray saw are capped at level 0. The
+   cap is soft (step 3): it saves photons where finer buckets would not show, but a surface seen
+   only in part (a lamp shade's rim) or missed by the size pass must still converge.
 2. **Light pass** (§3.4.2, §4.1, :func:`light_pass`): per light, an adaptive quadtree over one 2-D
    factor of Mitsuba's ``Emitter.sample_ray`` primary sample space (the direction of point and
    area lights and of the environment, the direction of a spot, the beam cross-section of a
-   directional light). Level by level, every new node sends one jittered *pilot* ray to its first
+   directional light; photons of area and infinite emitters are built by :func:`emitter_rays`).
+   Level by level, every new node sends one jittered *pilot* ray to its first
    diffuse hit; a node is split when one of its four neighbours reached another surface or
    specular chain (a different path signature: silhouettes, shadow and caustic edges) or landed
    farther away than ``light_split_dist``, and only where one of the two hits is seen by the eye
@@ -34,7 +36,8 @@ The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
 3. **Rex build** (§4.0.5, :func:`build_rex_tree`): the histogram-redistribution problem of §4.1
    is avoided by keeping the photon records (rex, u, v, Φ) of the final shoot — the paper's own
    suggestion in §5 — and building every rex quadtree from them: a bucket splits while it holds
-   more than ``split_limit`` photons and its cap allows. No photon is shot twice and no bucket
+   more than ``split_limit`` photons, or, past its cap, more than split_limit·4^(levels past the
+   cap): the buckets still shrink as the photon count grows. No photon is shot twice and no bucket
    mass is ever redistributed: each bucket's sum is exact for its final extent. (The split uses
    the same photons as the estimate; by symmetry the estimate at a point stays unbiased, though
    split buckets lean high and unsplit ones low.) The deposit into the leaves is a Dr.Jit
@@ -42,7 +45,15 @@ The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
    on the order of the atomic adds. A bucket's irradiance is E = ΣΦ / area
    (:mod:`mi_twopass.units`), with the exact world area of its parameter square times the
    fraction of it that closed objects resting on the surface leave open (:func:`probe_exposure`:
-   no dark seam along the foot of a box).
+   no dark seam along the foot of a box). Deposits are weighted by |cos θ_shading| /
+   |cos θ_geometric| of the arriving photon (the irradiance a diffuse BSDF integrates), and
+   keep their photon's depth: under a finite max_depth each bucket holds one irradiance per eye
+   depth (:func:`depth_classes`).
+
+Rays spawned here are offset relative to the scene's size (:func:`spawn_ray`); lengths are
+relative to :func:`scene_bounds`, the shapes' own bounds (Mitsuba's ``scene.bbox()`` misses
+rectangles it merged into one mesh). Scenes with participating media are refused
+(:func:`check_no_media`).
 
 Lookups (:meth:`Rexes.irradiance`) descend the quadtree and interpolate bilinearly between the
 centres of the leaf and its three neighbours towards the query point (neighbours found by
@@ -55,6 +66,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 
 import drjit as dr
@@ -78,8 +90,14 @@ MAX_LEVEL = 20
 #: deepest light-quadtree level (keys hold 19 bits per axis)
 MAX_LIGHT_LEVEL = 18
 ONE_MINUS_EPS = 1.0 - 2.0**-24
-#: photon record flag: deposited at the photon's first hit (an L·D path: direct light)
-FLAG_DIRECT = 1
+#: at most this many eye depths read rexes under a finite max_depth (deeper ones path-trace)
+MAX_DEPTH_CLASSES = 8
+#: a photon survives Russian roulette with q = min(max(β), PHOTON_RR_MAX). Mitsuba's eye paths
+#: cap q at 0.95, so at an albedo ρ > 0.95 each bounce multiplies the weight by ρ/0.95 and the second
+#: moment by ρ²/0.95: at ρ = 0.99 that is > 1, the flux estimate has infinite variance and its
+#: sample mean runs low (a furnace of ρ = 0.99 read 0.94 of Le/(1 − ρ) at 65536 photons). With the
+#: cap above any physical albedo the weight stays ≤ 1 and the mean path length is 1/(1 − ρ).
+PHOTON_RR_MAX = 0.999
 #: final photons per Dr.Jit launch
 PHOTON_BATCH = 1 << 20
 #: stratified points per rex leaf that test whether closed geometry buries it
@@ -91,15 +109,66 @@ _DIFFUSE = int(mi.BSDFFlags.DiffuseReflection)
 _NOT_REX = int(mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta | mi.BSDFFlags.DiffuseTransmission
                | mi.BSDFFlags.Null)
 _BACK = int(mi.BSDFFlags.BackSide)
+#: analytic shapes whose (u, v) square has an exact area rule (bucket_area)
+_UV_SHAPES = ("Rectangle", "Sphere", "Disk", "Cylinder")
 
 # seeds of the independent streams, so that passes never share random numbers
 _SALT_SIZE, _SALT_PROBE, _SALT_PILOT, _SALT_PHOTON, _SALT_NUMPY = 1, 2, 3, 4, 5
 
 
-def is_rex_bsdf(flags) -> bool:
-    """A rex lives on surfaces whose BSDF is purely diffuse reflection (one- or two-sided)."""
-    flags = int(flags)
-    return bool(flags & _DIFFUSE) and not (flags & _NOT_REX)
+#: BSDFs that are Lambertian reflection in the shading frame given the right children: the
+#: rex's ρ·E/π is exactly what they reflect. Anything else (bumpmap and normalmap, which tilt
+#: the frame; principled, plastics, ... with lobes the flags alone may not show; plugins we do
+#: not know) is path traced.
+_LAMBERTIAN = {"SmoothDiffuse": 0, "TwoSidedBRDF": 2, "BlendBSDF": 2}
+
+
+class _BSDFChildren(mi.TraversalCallback):
+    """Collects the BSDFs a BSDF holds (``twosided``'s two sides, ``blendbsdf``'s pair)."""
+
+    def __init__(self):
+        super().__init__()
+        self.children = []
+
+    def put(self, name, value, flags, cpptype=None):
+        if isinstance(value, mi.BSDF):
+            self.children.append(value)
+
+
+def _is_lambertian(bsdf) -> bool:
+    name = bsdf.class_name()
+    if name not in _LAMBERTIAN:
+        return False
+    if _LAMBERTIAN[name] == 0:
+        return True
+    cb = _BSDFChildren()
+    bsdf.traverse(cb)
+    return len(cb.children) > 0 and all(_is_lambertian(c) for c in cb.children)
+
+
+def is_rex_bsdf(bsdf) -> bool:
+    """A rex lives on surfaces whose BSDF is purely diffuse (Lambertian) reflection, one- or
+    two-sided: ``diffuse``, and ``twosided`` / ``blendbsdf`` made of such BSDFs. Given only
+    flags (an int), the flag test alone: necessary, not sufficient (a bumpmap or normalmap
+    around a diffuse BSDF has the same flags, but its tilted normal is not what the rex
+    holds)."""
+    flags = int(bsdf) if isinstance(bsdf, (int, np.integer)) or not hasattr(bsdf, "flags") \
+        else int(bsdf.flags())
+    if not (flags & _DIFFUSE) or (flags & _NOT_REX):
+        return False
+    return isinstance(bsdf, (int, np.integer)) or not hasattr(bsdf, "flags") \
+        or _is_lambertian(bsdf)
+
+
+def depth_classes(max_depth: int) -> int:
+    """How many eye depths read a rex under ``max_depth`` (Mitsuba's meaning: a path has at most
+    max_depth segments; -1 unbounded). A photon deposited at its k-th hit (k + 1 segments from
+    the light) and read at an eye vertex of depth d (d + 1 segments from the camera) makes a path
+    of k + d + 2 segments, so class d of a bucket holds the photons with k ≤ max_depth − 2 − d;
+    unbounded, one class holds them all."""
+    if max_depth < 0:
+        return 1
+    return int(max(1, min(max_depth - 1, MAX_DEPTH_CLASSES)))
 
 
 def _seed(seed, salt, extra=0) -> int:
@@ -141,10 +210,15 @@ class RexTables:
 
     def __init__(self, scene):
         shapes = list(scene.shapes())
+        self.bounds = scene_bounds(scene)
+        #: the length ray offsets are relative to (:func:`spawn_ray`)
+        self.scale = float(self.bounds.radius)
         ids = (np.asarray(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
                if shapes else np.zeros(0, np.int64))
+        # ids past the scene's shapes (those inside instanced shape groups) map to the sentinel
+        # entry n_ids: NO_SHAPE, so they are path traced and never alias a real shape
         self.n_ids = int(ids.max()) + 1 if ids.size else 1
-        id_to_shape = np.full(self.n_ids, NO_SHAPE, np.uint32)
+        id_to_shape = np.full(self.n_ids + 1, NO_SHAPE, np.uint32)
         id_to_shape[ids] = np.arange(len(shapes), dtype=np.uint32)
 
         n = len(shapes)
@@ -159,10 +233,13 @@ class RexTables:
         n_tris = 0
         for i, shape in enumerate(shapes):  # setup over shapes, not a hot path
             bsdf = shape.bsdf()
-            flags = int(bsdf.flags()) if bsdf is not None else 0
-            if not is_rex_bsdf(flags):
-                continue
             name = shape.class_name()
+            # instances (their shapes live in a shape group) and shapes with no exact (u, v)
+            # area rule carry no rex: the eye pass path-traces them
+            if bsdf is None or not is_rex_bsdf(bsdf) or name == "Instance" or \
+                    not (shape.is_mesh() or name in _UV_SHAPES):
+                continue
+            flags = int(bsdf.flags())
             sides[i] = 2 if flags & _BACK else 1
             if shape.is_mesh() and name != "Rectangle":
                 kind[i] = KIND_TRI
@@ -260,7 +337,7 @@ class RexTables:
         ``uv`` is the analytic shape's ``si.uv`` or the triangle's barycentrics (b1, b2), clamped
         into [0, 1)²; ``shape`` is the hit's shape index (``NO_SHAPE`` where none)."""
         ok = mi.Bool(active) & si.is_valid()
-        sid = dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids - 1)
+        sid = dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids)
         shape = dr.gather(mi.UInt32, self.d_id_to_shape, sid, ok)
         shape = dr.select(ok, shape, NO_SHAPE)
         ok &= shape != NO_SHAPE
@@ -297,7 +374,7 @@ class RexTables:
     def jacobian(self, si, rex, active):
         """World area per unit parameter area at a hit: |∂p/∂u × ∂p/∂v| or 2·A(triangle)."""
         shape = dr.gather(mi.UInt32, self.d_id_to_shape,
-                          dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids - 1),
+                          dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids),
                           active)
         kind = dr.gather(mi.UInt32, self.d_kind, shape, active)
         tid = dr.gather(mi.UInt32, self.d_tri_base, shape, active) + si.prim_index
@@ -305,7 +382,7 @@ class RexTables:
         return dr.select(kind == KIND_TRI, tri, dr.norm(dr.cross(si.dp_du, si.dp_dv)))
 
     def shape_index(self, si, active):
-        sid = dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids - 1)
+        sid = dr.minimum(dr.reinterpret_array(mi.UInt32, si.shape), self.n_ids)
         return dr.select(active & si.is_valid(),
                          dr.gather(mi.UInt32, self.d_id_to_shape, sid, active), NO_SHAPE)
 
@@ -386,7 +463,7 @@ def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max
         go_on = valid & ~at_rex & (tables.shape_index(si, valid) != NO_SHAPE) \
             & (depth + 1 < MAX_CHAIN)
         bs, w = bsdf.sample(ctx, si, sampler.next_1d(go_on), sampler.next_2d(go_on), go_on)
-        ray = si.spawn_ray(si.to_world(bs.wo))
+        ray = spawn_ray(si, si.to_world(bs.wo), tables.scale)
         depth += 1
         active = go_on & (bs.pdf > 0) & (dr.max(w) > 0)
         active &= ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse) | \
@@ -438,26 +515,86 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
 # ---------------------------------------------------------------------------------------------
 # Light pass (§3.3.1, §4.1): emitters, light quadtree, pilot rays, photons
 # ---------------------------------------------------------------------------------------------
-def probe_emitters(scene, seed, n_probe=256):
-    """Power of every emitter (mean ``sample_ray`` weight) and which 2-D sample the light
-    quadtree adapts: 3 (``sample3``) where it changes the ray, else 2."""
+def spawn_ray(si, d, scale):
+    """``si.spawn_ray(d)`` with an offset relative to the scene's size: Mitsuba offsets the
+    origin by (1 m + max|p|)·RayEpsilon along the normal, 89 µm at least, which is most of a
+    scene modelled in tenths of a millimetre; here the 1 m is ``scale`` (the scene's bounding
+    radius), the same offset for a unit-sized scene."""
+    mag = (scale + dr.max(dr.abs(si.p))) * mi.math.RayEpsilon
+    mag = dr.mulsign(mag, dr.dot(si.n, d))
+    return mi.Ray3f(dr.fma(mag, si.n, si.p), d, si.time, si.wavelengths)
+
+
+def emitter_rays(scene, bounds, em, s2, s3, active=True):
+    """Photon rays ``(ray, weight)`` leaving the emitters ``em`` (indices into
+    ``scene.emitters()``) from the primary samples ``s2``, ``s3``, as Mitsuba's ``sample_ray``
+    samples them, built here where Mitsuba's would be wrong:
+
+    * surface (area) emitters: a point by ``sample_position`` (``s2``), a cosine-weighted
+      direction (``s3``), weight Le·π/pdf, the origin offset by :func:`spawn_ray` (Mitsuba's
+      absolute offset starts photons in the middle of a sub-millimetre scene);
+    * infinite emitters (constant, envmap, sunsky, directional, ...): a direction by
+      ``sample_direction`` (``s2``, weight L/pdf) and a point of the disk of radius R facing it
+      (``s3``), R the bounding sphere of :func:`scene_bounds`: weight L/pdf · πR². Mitsuba's own
+      infinite ``sample_ray`` starts on the sphere around ``scene.bbox()``, which misses the
+      rectangles Mitsuba merges into one mesh (its bbox is that of the other parts, or empty):
+      those photons started inside the scene, past its walls;
+    * others (point, spot, projector, ...): Mitsuba's ``sample_ray``."""
+    active = mi.Bool(active)
+    n = dr.width(em)
+    ep = dr.gather(mi.EmitterPtr, scene.emitters_dr(), em, active)
+    flags = ep.flags()
+    infinite = active & mi.has_flag(flags, mi.EmitterFlags.Infinite)
+    surface = active & ~infinite & mi.has_flag(flags, mi.EmitterFlags.Surface)
+    other = active & ~infinite & ~surface
+    ray, weight = ep.sample_ray(0.0, 0.5, s2, s3, other)
+    weight = dr.select(other, weight, 0.0)
+
+    # surface emitters
+    ps, pos_weight = ep.sample_position(0.0, s2, surface)
+    si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f, n))
+    local = mi.warp.square_to_cosine_hemisphere(s3)
+    si.wi = local
+    Le = ep.eval(si, surface)
+    d = si.to_world(local)
+    ok = surface & (ps.pdf > 0) & (local.z > 0)
+    ray = dr.select(surface, spawn_ray(si, d, float(bounds.radius)), ray)
+    weight = dr.select(surface, dr.select(ok, Le * pos_weight * math.pi, 0.0), weight)
+
+    # infinite emitters
+    center = mi.Point3f(*(float(c) for c in bounds.center))
+    radius = float(bounds.radius)
+    it = dr.zeros(mi.Interaction3f, n)
+    it.p = center
+    ds, w_dir = ep.sample_direction(it, s2, infinite)
+    frame = mi.Frame3f(ds.d)  # ds.d points from the scene towards the emitter
+    disk = mi.warp.square_to_uniform_disk_concentric(s3)
+    origin = center + radius * (ds.d + frame.to_world(mi.Vector3f(disk.x, disk.y, 0.0)))
+    ok = infinite & (ds.pdf > 0)
+    ray = dr.select(infinite, mi.Ray3f(origin, -ds.d), ray)
+    weight = dr.select(infinite, dr.select(ok, w_dir * (math.pi * radius * radius), 0.0), weight)
+    return ray, weight
+
+
+def probe_emitters(scene, seed, bounds, n_probe=256):
+    """Power of every emitter (mean photon weight of :func:`emitter_rays`) and which 2-D
+    sample the light quadtree adapts: 3 (``sample3``) where it changes the ray, else 2."""
     emitters = scene.emitters()
     E = len(emitters)
     if E == 0:
         return np.zeros(0), np.zeros(0, np.int64)
     idx = dr.arange(mi.UInt32, E * n_probe) // n_probe
-    ep = dr.gather(mi.EmitterPtr, scene.emitters_dr(), idx)
     sampler = _sampler(_seed(seed, _SALT_PROBE), E * n_probe)
     s2, s3, s3b = sampler.next_2d(), sampler.next_2d(), sampler.next_2d()
-    ray_a, w = ep.sample_ray(0.0, 0.5, s2, s3)
-    ray_b, _ = ep.sample_ray(0.0, 0.5, s2, s3b)
+    ray_a, w = emitter_rays(scene, bounds, idx, s2, s3)
+    ray_b, _ = emitter_rays(scene, bounds, idx, s2, s3b)
     moved = dr.norm(ray_a.d - ray_b.d) + dr.norm(ray_a.o - ray_b.o)
     dr.eval(w, moved)
     w_np = np.stack([np.asarray(w[c], np.float64) for c in range(3)], axis=1)
     w_np = np.where(np.isfinite(w_np), w_np, 0.0)
     power = w_np.mean(axis=1).reshape(E, n_probe).mean(axis=1)
     moved_np = np.asarray(moved, np.float64).reshape(E, n_probe)
-    uses3 = (moved_np > 1e-6).any(axis=1)
+    uses3 = (moved_np > 1e-6 * bounds.diagonal).any(axis=1)
     return power, np.where(uses3, 3, 2)
 
 
@@ -486,7 +623,7 @@ def _pilot_trace(scene, tables, ray, sampler):
         bsdf = si.bsdf(ray)
         go_on = valid & ~at_rex & (depth + 1 < MAX_CHAIN)
         bs, w = bsdf.sample(ctx, si, sampler.next_1d(go_on), sampler.next_2d(go_on), go_on)
-        ray = si.spawn_ray(si.to_world(bs.wo))
+        ray = spawn_ray(si, si.to_world(bs.wo), tables.scale)
         depth += 1
         alive = (bs.pdf > 0) & (dr.max(w) > 0)
         sig = dr.select(go_on & ~alive, (sig ^ 0x85EBCA6B) * 16777619, sig)
@@ -499,9 +636,14 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
                   max_depth, rr_depth):
     """Photons from the lights: deposit Φ at every rex hit, scatter by the hit's BSDF.
 
-    Records (rex, u, v, Φ, flags) go to slot ``scatter_inc(counter)`` when below ``capacity``."""
-    rec_rex, rec_u, rec_v, rec_flux, rec_flag = records
+    Records (rex, u, v, Φ, depth k of the hit) go to slot ``scatter_inc(counter)`` when below
+    ``capacity``. Φ is weighted by |cos θ_shading| / |cos θ_geometric| of the arriving photon:
+    a bucket then holds the irradiance that Mitsuba's diffuse BSDF integrates (in the shading
+    frame), not the flux density across the geometric surface (they differ on meshes with
+    interpolated normals)."""
+    rec_rex, rec_u, rec_v, rec_flux, rec_depth = records
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
+    ctx_radiance = mi.BSDFContext()
     ray = mi.Ray3f(ray)
     flux = mi.Color3f(flux)
     beta = mi.Color3f(1.0)
@@ -515,34 +657,47 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
         valid = active & si.is_valid()
         first_hit |= valid & (depth == 0)
         rex, uv, at_rex = tables.locate(si, valid)
-        deposit = at_rex & (keep_direct | (depth > 0)) & (depth + 2 <= max_depth)
+        wi_geo = dr.dot(si.n, -ray.d)
+        cos_wi = mi.Frame3f.cos_theta(si.wi)
+        deposit = at_rex & (keep_direct | (depth > 0)) & (depth + 2 <= max_depth) \
+            & (wi_geo != 0)
         slot = dr.scatter_inc(counter, mi.UInt32(0), deposit)
         write = deposit & (slot < capacity)
         dr.scatter(rec_rex, rex, slot, write)
         dr.scatter(rec_u, uv.x, slot, write)
         dr.scatter(rec_v, uv.y, slot, write)
-        Phi = flux * beta
+        Phi = flux * beta * dr.abs(cos_wi / dr.select(write, wi_geo, 1.0))
         for c in range(3):
             dr.scatter(rec_flux, Phi[c], slot * 3 + c, write)
-        flag = dr.select(depth == 0, mi.UInt32(FLAG_DIRECT), mi.UInt32(0))
-        dr.scatter(rec_flag, flag, slot, write)
+        dr.scatter(rec_depth, depth, slot, write)
 
         bsdf = si.bsdf(ray)
         bs, w = bsdf.sample(ctx, si, sampler.next_1d(valid), sampler.next_2d(valid), valid)
         wo = si.to_world(bs.wo)
-        # geometric-normal consistency and the adjoint shading-normal correction (Veach p. 155)
-        wi_geo = dr.dot(si.n, -ray.d)
         wo_geo = dr.dot(si.n, wo)
-        cos_wi = mi.Frame3f.cos_theta(si.wi)
         cos_wo = mi.Frame3f.cos_theta(bs.wo)
         good = (wi_geo * cos_wi > 0) & (wo_geo * cos_wo > 0)
+        # The photon's weight is the adjoint of what Mitsuba's path integrates: the BSDF
+        # evaluated (radiance mode) with the new direction on the eye side, times
+        # |cos_g(new)| / |cos_g(incoming)|, over the density of the sample. For a delta sample,
+        # Mitsuba's importance-mode weight with the adjoint shading-normal correction (Veach
+        # p. 155); for the others the direct evaluation, which also holds for BSDFs that are
+        # not symmetric (normalmap and bumpmap tilt one side's frame: with the correction for
+        # the surface's own normal, a floor lit by a normal-mapped wall was 4.5 % too bright).
         corr = dr.abs((cos_wi * wo_geo) / dr.select(good, cos_wo * wi_geo, 1.0))
-        beta *= dr.select(good, w * corr, 0.0)
-        ray = si.spawn_ray(wo)
+        smooth = good & ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        si_adj = mi.SurfaceInteraction3f(si)
+        si_adj.wi = bs.wo
+        f_adj = bsdf.eval(ctx_radiance, si_adj, si.wi, smooth)
+        pdf = bsdf.pdf(ctx, si, bs.wo, smooth)
+        w_adj = f_adj * dr.abs(wo_geo / dr.select(smooth, wi_geo * pdf, 1.0))
+        w_adj = dr.select(smooth & (pdf > 0), w_adj, 0.0)
+        beta *= dr.select(good, dr.select(smooth, w_adj, w * corr), 0.0)
+        ray = spawn_ray(si, wo, tables.scale)
         depth += 1
         alive = valid & good & (bs.pdf > 0) & (dr.max(beta) > 0) & (depth + 2 <= max_depth)
         rr = alive & (depth >= rr_depth)
-        q = dr.minimum(dr.max(beta), 0.95)
+        q = dr.minimum(dr.max(beta), PHOTON_RR_MAX)
         survive = ~rr | (sampler.next_1d(rr) < q)
         beta = dr.select(rr, beta * dr.rcp(dr.maximum(q, 1e-30)), beta)
         active = alive & survive
@@ -625,22 +780,22 @@ def _padded(rng, em, n_em):
     return u
 
 
-def _emitter_rays(scene, em, adapt_dim, s_adapt, s_other):
-    ep = dr.gather(mi.EmitterPtr, scene.emitters_dr(), mi.UInt32(em.astype(np.uint32)))
+def _emitter_rays(scene, bounds, em, adapt_dim, s_adapt, s_other):
     use3 = adapt_dim[em] == 3
     s2 = np.where(use3[:, None], s_other, s_adapt)
     s3 = np.where(use3[:, None], s_adapt, s_other)
     s2 = np.clip(s2, 0.0, ONE_MINUS_EPS).astype(np.float32)
     s3 = np.clip(s3, 0.0, ONE_MINUS_EPS).astype(np.float32)
-    return ep.sample_ray(0.0, 0.5, mi.Point2f(s2[:, 0], s2[:, 1]), mi.Point2f(s3[:, 0], s3[:, 1]))
+    return emitter_rays(scene, bounds, mi.UInt32(em.astype(np.uint32)),
+                        mi.Point2f(s2[:, 0], s2[:, 1]), mi.Point2f(s3[:, 0], s3[:, 1]))
 
 
-def _pilot(scene, tables, seen_rex, adapt_dim, em, lev, ix, iy, rng, seed, n_em):
+def _pilot(scene, bounds, tables, seen_rex, adapt_dim, em, lev, ix, iy, rng, seed, n_em):
     """Trace one jittered pilot ray per new light node."""
     h = np.ldexp(1.0, -lev)
     s_adapt = np.stack([(ix + rng.random(len(ix))) * h, (iy + rng.random(len(iy))) * h], 1)
     s_other = _padded(rng, em, n_em)
-    ray, _ = _emitter_rays(scene, em, adapt_dim, s_adapt, s_other)
+    ray, _ = _emitter_rays(scene, bounds, em, adapt_dim, s_adapt, s_other)
     sampler = _sampler(seed, len(em))
     sig, pos, rex, hit, n_rays = _pilot_trace(scene, tables, ray, sampler)
     dr.eval(sig, pos, rex, hit, n_rays)  # one kernel for all outputs
@@ -659,7 +814,7 @@ def _children(em, lev, ix, iy):
     return e4, l4, np.repeat(ix * 2, 4) + (q & 1), np.repeat(iy * 2, 4) + (q >> 1)
 
 
-def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim, diag):
+def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim, bounds):
     """Adapt every emitter's light quadtree level by level (§4.1 steps 2–3 on pilot rays).
 
     Returns the tree and the number of pilot rays."""
@@ -677,10 +832,10 @@ def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim
     res = np.left_shift(1, lev)
     ix, iy = local % res, local // res
     pilot_rays = 0
-    thresh2 = (settings.light_split_dist * diag) ** 2
+    thresh2 = (settings.light_split_dist * bounds.diagonal) ** 2
     for step in range(settings.light_levels + 1):
-        sig, pos, hit, seen, nr = _pilot(scene, tables, seen_rex, adapt_dim, em, lev, ix, iy,
-                                         rng, _seed(seed, _SALT_PILOT, step), n_em)
+        sig, pos, hit, seen, nr = _pilot(scene, bounds, tables, seen_rex, adapt_dim, em, lev,
+                                         ix, iy, rng, _seed(seed, _SALT_PILOT, step), n_em)
         pilot_rays += nr
         first = len(tree.em)
         tree.append(em, lev, ix, iy, sig, pos, hit, seen)
@@ -736,15 +891,15 @@ def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim
     return tree, pilot_rays
 
 
-def light_pass(scene, tables, seen_rex, settings, seed, diag, keep_direct):
+def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct):
     """Adapt the light quadtrees, then shoot the final photons; returns records and stats."""
     t0 = time.perf_counter()
-    power, adapt_dim = probe_emitters(scene, seed)
+    power, adapt_dim = probe_emitters(scene, seed, bounds)
     stats = {"emitters": len(power), "light_rays": 0, "pilot_rays": 0, "photons": 0,
              "light_hit_percent": 0.0, "light_tree_leaves": 0, "light_tree_max_level": 0}
     empty = {"rex": np.zeros(0, np.uint32), "u": np.zeros(0, np.float32),
              "v": np.zeros(0, np.float32), "flux": np.zeros((0, 3), np.float32),
-             "flag": np.zeros(0, np.uint8)}
+             "depth": np.zeros(0, np.uint16)}
     total = float(power.sum()) if len(power) else 0.0
     if total <= 0 or not np.isfinite(total):
         stats["light_seconds"] = time.perf_counter() - t0
@@ -755,7 +910,7 @@ def light_pass(scene, tables, seen_rex, settings, seed, diag, keep_direct):
     # the light quadtree's leaves each shoot 4 photons (one per quadrant)
     tree, pilot_rays = build_light_tree(scene, tables, seen_rex, settings, seed,
                                         np.where(budgets > 0, np.maximum(budgets // 4, 1), 0),
-                                        adapt_dim, diag)
+                                        adapt_dim, bounds)
 
     # final shoot: every leaf afresh, one jittered photon per quadrant, `reps` times so that
     # each emitter uses its budget
@@ -779,7 +934,8 @@ def light_pass(scene, tables, seen_rex, settings, seed, diag, keep_direct):
     with progress(total=len(lanes), desc="rex light pass", unit="photon") as bar:
         for b, start in enumerate(range(0, len(lanes), PHOTON_BATCH)):
             sel = perm[start:start + PHOTON_BATCH]
-            ray, w = _emitter_rays(scene, em[sel], adapt_dim, s_adapt[sel], s_other[sel])
+            ray, w = _emitter_rays(scene, bounds, em[sel], adapt_dim, s_adapt[sel],
+                                   s_other[sel])
             w = dr.select(dr.isfinite(w), w, 0.0)
             flux = w * mi.Float(scale[sel].astype(np.float32))
             capacity = 3 * len(sel)
@@ -799,12 +955,13 @@ def light_pass(scene, tables, seen_rex, settings, seed, diag, keep_direct):
                 capacity = count  # deterministic: the same seed gives the same records
             rays += int(dr.sum(n_rays)[0])
             hits += int(dr.count(first_hit)[0])
-            # compact records: 25 bytes each
+            # compact records: 26 bytes each
             parts["rex"].append(np.asarray(recs[0], np.uint32)[:count])
             parts["u"].append(np.asarray(recs[1], np.float32)[:count])
             parts["v"].append(np.asarray(recs[2], np.float32)[:count])
             parts["flux"].append(np.asarray(recs[3], np.float32)[:3 * count].reshape(-1, 3))
-            parts["flag"].append(np.asarray(recs[4], np.uint8)[:count])
+            parts["depth"].append(np.minimum(np.asarray(recs[4], np.uint32)[:count],
+                                             np.iinfo(np.uint16).max).astype(np.uint16))
             bar.update(len(sel))
     records = {k: np.concatenate(v) if v else empty[k] for k, v in parts.items()}
     stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=len(lanes),
@@ -825,7 +982,8 @@ class Rexes:
 
     ``child[node]`` is the index of the first of its four children (quadrant qx + 2·qy) or LEAF.
     Every node stores its bucket's world ``area``, photon ``count`` and irradiances ``E_direct``
-    (photons that came straight from a light) and ``E_indirect`` (all others) in W/m²."""
+    (photons that came straight from a light) and ``E_indirect`` (all others) in W/m², per depth
+    class (:func:`depth_classes`; the (n, 3) attributes are class 0, ``*_classes`` all)."""
 
     def __init__(self, tables, node_rex, level, ix, iy, child, count, flux_d, flux_i,
                  exposure=None, exposure_rays=0):
@@ -838,15 +996,23 @@ class Rexes:
             np.zeros(0)
         self.exposure = np.ones(len(child)) if exposure is None else exposure
         self.area = self.param_area * self.exposure
-        self.flux_direct, self.flux_indirect = flux_d, flux_i
-        self.E_direct = units.irradiance_from_flux(flux_d, self.area)
-        self.E_indirect = units.irradiance_from_flux(flux_i, self.area)
+        flux_d = np.asarray(flux_d, np.float64)
+        flux_i = np.asarray(flux_i, np.float64)
+        if flux_d.ndim == 2:  # one depth class
+            flux_d, flux_i = flux_d[:, None, :], flux_i[:, None, :]
+        self.classes = int(flux_d.shape[1]) if flux_d.ndim == 3 else 1
+        self.E_direct_classes = units.irradiance_from_flux(flux_d, self.area)
+        self.E_indirect_classes = units.irradiance_from_flux(flux_i, self.area)
+        self.flux_direct, self.flux_indirect = flux_d[:, 0], flux_i[:, 0]
+        self.E_direct = self.E_direct_classes[:, 0]
+        self.E_indirect = self.E_indirect_classes[:, 0]
         pad = np.zeros(1)
         self.d_child = mi.UInt32(np.append(child, LEAF).astype(np.uint32))
         self.d_area = mi.Float(np.append(self.area, pad).astype(np.float32))
-        self.d_E_direct = mi.Float(np.append(self.E_direct.ravel(), np.zeros(3)).astype(np.float32))
+        self.d_E_direct = mi.Float(
+            np.append(self.E_direct_classes.ravel(), np.zeros(3)).astype(np.float32))
         self.d_E_indirect = mi.Float(
-            np.append(self.E_indirect.ravel(), np.zeros(3)).astype(np.float32))
+            np.append(self.E_indirect_classes.ravel(), np.zeros(3)).astype(np.float32))
 
     # -- numpy views ----------------------------------------------------------------------------
     @property
@@ -867,8 +1033,8 @@ class Rexes:
 
     @property
     def nbytes(self) -> int:
-        # per node on the device: child (4), area (4), two RGB irradiances (24)
-        return int(self.n_nodes * 32)
+        # per node on the device: child (4), area (4), two RGB irradiances per class (24)
+        return int(self.n_nodes * (8 + 24 * self.classes))
 
     def leaves(self, rex=None) -> dict:
         """The leaves (of one rex, or all) as numpy arrays: rex, level, u0, v0, size, area,
@@ -901,24 +1067,29 @@ class Rexes:
             go = go & (c != LEAF)
         return node, level
 
-    def _value(self, node, active, w_direct, w_indirect):
-        """w_direct · E_direct + w_indirect · E_indirect of a node (weights: floats or lanes)."""
+    def _value(self, node, active, w_direct, w_indirect, cls=0):
+        """w_direct · E_direct + w_indirect · E_indirect of a node in depth class ``cls``
+        (weights: floats or lanes)."""
         E = mi.Color3f(0.0)
+        slot = node * self.classes + cls if self.classes > 1 else node
         if not (isinstance(w_direct, (int, float)) and w_direct == 0):
-            E += w_direct * dr.gather(mi.Color3f, self.d_E_direct, node, active)
+            E += w_direct * dr.gather(mi.Color3f, self.d_E_direct, slot, active)
         if not (isinstance(w_indirect, (int, float)) and w_indirect == 0):
-            E += w_indirect * dr.gather(mi.Color3f, self.d_E_indirect, node, active)
+            E += w_indirect * dr.gather(mi.Color3f, self.d_E_indirect, slot, active)
         return E
 
-    def irradiance(self, rex, uv, active=True, w_direct=1.0, w_indirect=1.0, smooth=True):
+    def irradiance(self, rex, uv, active=True, w_direct=1.0, w_indirect=1.0, smooth=True, cls=0):
         """Irradiance E [W/m²] at (rex, uv) and its leaf (node, level).
 
-        E = w_direct·E_direct + w_indirect·E_indirect, of the leaf bucket (``smooth=False``) or
-        interpolated bilinearly between the centres of the leaf and its neighbours."""
+        E = w_direct·E_direct + w_indirect·E_indirect in depth class ``cls`` (an eye vertex's
+        depth under a finite max_depth), of the leaf bucket (``smooth=False``) or interpolated
+        bilinearly between the centres of the leaf and its neighbours."""
         active = mi.Bool(active)
         u, v = uv.x, uv.y
+        if self.classes > 1:
+            cls = dr.minimum(mi.UInt32(cls), self.classes - 1)
         node, level = self.descend(rex, u, v, active)
-        E0 = self._value(node, active, w_direct, w_indirect)
+        E0 = self._value(node, active, w_direct, w_indirect, cls)
         if not smooth:
             return E0, node, level
         h = dr.rcp(mi.Float(mi.UInt32(1) << level))
@@ -937,7 +1108,7 @@ class Rexes:
             inside = active & (nu >= 0) & (nu < 1) & (nv >= 0) & (nv < 1)
             n_node, _ = self.descend(rex, nu, nv, inside)
             ok = inside & (dr.gather(mi.Float, self.d_area, n_node, inside) > 0)
-            return dr.select(ok, self._value(n_node, ok, w_direct, w_indirect), E0)
+            return dr.select(ok, self._value(n_node, ok, w_direct, w_indirect, cls), E0)
 
         E = (1 - wu) * (1 - wv) * E0 + wu * (1 - wv) * neighbour(su, 0.0) \
             + (1 - wu) * wv * neighbour(0.0, sv) + wu * wv * neighbour(su, sv)
@@ -951,8 +1122,10 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
     E = ΣΦ / area would be too dark next to the box (the light leak of radiosity textures,
     inverted). ``m`` stratified points per bucket are lifted off the surface by a hair and tested
     with three rays (along the normal and both ways along a random tangent): a point all of whose
-    rays first hit a back face is inside a closed object. Returns the open fraction per node in
-    ``nodes`` (1 where nothing covers the bucket)."""
+    rays first hit the back face of a one-sided surface (no BackSide BSDF flag) is inside a
+    closed object. Two-sided and transmissive surfaces never bury a point: their normals may
+    point anywhere (a room of two-sided walls with outward normals is not "inside"). Returns
+    the open fraction per node in ``nodes`` (1 where nothing covers the bucket)."""
     out = np.ones(len(nodes))
     if len(nodes) == 0:
         return out, 0
@@ -998,7 +1171,7 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
     t2 = np.cross(n, t1)
     phi = rng.random(len(sub)) * 2 * math.pi
     tan = np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2
-    eps = 1e-5 * (scene_diagonal(scene) + np.abs(p).max(axis=1, keepdims=True))
+    eps = 1e-5 * (tables.bounds.diagonal + np.abs(p).max(axis=1, keepdims=True))
     origin = p + n * eps
     enclosed = valid.copy()
     rays = 0
@@ -1007,7 +1180,11 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
         ray = mi.Ray3f(mi.Point3f(*(mi.Float(origin[:, c].astype(np.float32)) for c in range(3))),
                        mi.Vector3f(*(mi.Float(d[:, c].astype(np.float32)) for c in range(3))))
         si = scene.ray_intersect(ray, mi.Bool(enclosed))
-        back = si.is_valid() & (dr.dot(si.n, ray.d) > 0)
+        # only the back of a one-sided surface walls a point in: a two-sided or transmissive
+        # BSDF's normal says nothing about inside and outside (a room of two-sided walls whose
+        # normals point out would otherwise count as the inside of a closed object)
+        one_sided = ~mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.BackSide)
+        back = si.is_valid() & (dr.dot(si.n, ray.d) > 0) & one_sided
         enclosed &= np.asarray(back, bool)
     open_count = np.bincount(lane_node, weights=(valid & ~enclosed).astype(np.float64),
                              minlength=len(nodes))
@@ -1016,15 +1193,16 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
 
 
 def build_rex_tree(tables, records, cap, settings, scene=None, seed=0) -> Rexes:
-    """Split every rex bucket holding more than ``split_limit`` photons, down to its size-pass cap
-    (§4.1 "rex subdivision"), all rexes at once, level by level; then deposit the records and,
-    given the scene, measure how much of each leaf is buried under closed objects."""
+    """Split every rex bucket holding more than ``split_limit`` photons (past its size-pass cap,
+    more than split_limit·4^(levels past it); §4.1 "rex subdivision"), all rexes at once, level
+    by level; then deposit the records and, given the scene, measure how much of each leaf is
+    buried under closed objects."""
     R = tables.count
     rex = records["rex"].astype(np.int64)
     u = records["u"].astype(np.float64)
     v = records["v"].astype(np.float64)
     rec_cap = cap[tables.size_cell_np(rex, u, v)] if len(rex) else np.zeros(0, np.int64)
-    rec_cap = np.minimum(rec_cap, settings.max_level)
+    rec_cap = np.minimum(rec_cap, settings.max_level).astype(np.int64)
     node_rex = [np.arange(R, dtype=np.int64)]
     level = [np.zeros(R, np.int64)]
     ix = [np.zeros(R, np.int64)]
@@ -1039,8 +1217,16 @@ def build_rex_tree(tables, records, cap, settings, scene=None, seed=0) -> Rexes:
             break
         idx = rec_node[moving] - lvl_start
         cnt = np.bincount(idx, minlength=n_lev)
-        elig = np.bincount(idx[rec_cap[moving] > lev], minlength=n_lev)
-        split = np.nonzero((cnt > settings.split_limit) & (elig > 0))[0]
+        # the size-pass cap is soft: past it, a bucket splits only with 4× more photons per
+        # level (threshold split_limit·4^(level − cap + 1)), so buckets still shrink as the
+        # photon count grows. A hard cap left the sub-pixel triangles of a lamp shade (seen
+        # only along their rims, or missed by the size pass) one bucket each, whose average
+        # irradiance is not that of the visible part, a bias no photon count removed.
+        bucket_cap = np.zeros(n_lev, np.int64)
+        np.maximum.at(bucket_cap, idx, rec_cap[moving])
+        past = np.maximum(lev - bucket_cap + 1, 0)
+        limit = settings.split_limit * np.power(4.0, np.minimum(past, 30))
+        split = np.nonzero((cnt > limit) & (lev < settings.max_level))[0]
         if len(split) == 0:
             break
         # the nodes of level `lev` are the last block appended: give split ones four children
@@ -1080,17 +1266,24 @@ def build_rex_tree(tables, records, cap, settings, scene=None, seed=0) -> Rexes:
     fmax = float(records["flux"].max()) if len(rex) else 0.0
     quantum = fmax / 2.0**32 if fmax > 0 and np.isfinite(fmax) else 1.0
     UInt64, Float64 = dr.uint64_array_t(mi.Float), dr.float64_array_t(mi.Float)
+    # depth classes (finite max_depth): a record of depth k goes to the deepest class it
+    # belongs to, c0 = min(C − 1, max_depth − 2 − k); class c then sums the classes ≥ c
+    C = depth_classes(settings.max_depth)
+    k = records["depth"].astype(np.int64) if len(rex) else np.zeros(0, np.int64)
+    c0 = np.zeros(len(rex), np.int64) if settings.max_depth < 0 else \
+        np.clip(settings.max_depth - 2 - k, 0, C - 1)
     flux = {}
-    direct = (records["flag"] & FLAG_DIRECT) != 0
+    direct = k == 0
     for name, sel in (("d", direct), ("i", ~direct)):
-        target = dr.zeros(UInt64, 3 * n + 3)
+        target = dr.zeros(UInt64, 3 * n * C + 3)
         if sel.any():
-            idx = rec_node[sel]
+            idx = rec_node[sel] * C + c0[sel]
             for c in range(3):
                 q = dr.round(Float64(records["flux"][sel, c].astype(np.float64)) / quantum)
                 dr.scatter_reduce(dr.ReduceOp.Add, target, UInt64(q),
                                   mi.UInt32((3 * idx + c).astype(np.uint32)))
-        flux[name] = np.asarray(target, np.float64)[:3 * n].reshape(n, 3) * quantum
+        per_class = np.asarray(target, np.float64)[:3 * n * C].reshape(n, C, 3) * quantum
+        flux[name] = np.cumsum(per_class[:, ::-1], axis=1)[:, ::-1]
     exposure = np.ones(n)
     exposure_rays = 0
     if scene is not None:
@@ -1123,25 +1316,117 @@ class RexPrepass:
         return int(self.tables.nbytes + self.rexes.nbytes + self.cap.size)
 
 
+@dataclass(frozen=True)
+class SceneBounds:
+    """The axis-aligned bounds of a scene's geometry (every length of the prepass is relative to
+    them) and its bounding sphere (where photons of infinite emitters start)."""
+
+    lo: tuple
+    hi: tuple
+
+    @property
+    def center(self) -> np.ndarray:
+        return 0.5 * (np.asarray(self.lo) + np.asarray(self.hi))
+
+    @property
+    def diagonal(self) -> float:
+        d = float(np.linalg.norm(np.asarray(self.hi) - np.asarray(self.lo)))
+        return d if d > 0 and math.isfinite(d) else 1.0
+
+    @property
+    def radius(self) -> float:
+        """Bounding-sphere radius, a hair larger than half the diagonal (rays start outside)."""
+        return 0.5 * self.diagonal * (1.0 + 1e-3)
+
+
+def scene_bounds(scene) -> SceneBounds:
+    """Bounds of every shape, meshes from their vertices: ``scene.bbox()`` cannot be trusted
+    (Mitsuba 3.9 leaves the rectangles it merges into one mesh out of the merged mesh's bbox,
+    so the bbox of a room of rectangles can be empty or that of a torus inside it)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for shape in scene.shapes():
+        if shape.is_mesh() and shape.vertex_count() > 0:
+            V = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+            b_lo, b_hi = V.min(axis=0), V.max(axis=0)
+        else:
+            bbox = shape.bbox()
+            b_lo = np.asarray(bbox.min, np.float64).ravel()[:3]
+            b_hi = np.asarray(bbox.max, np.float64).ravel()[:3]
+        ok = np.isfinite(b_lo).all() and np.isfinite(b_hi).all() and (b_hi >= b_lo).all()
+        if ok:
+            lo, hi = np.minimum(lo, b_lo), np.maximum(hi, b_hi)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        lo, hi = np.full(3, -0.5), np.full(3, 0.5)
+    return SceneBounds(tuple(lo), tuple(hi))
+
+
 def scene_diagonal(scene) -> float:
+    """The diagonal of :func:`scene_bounds` (1 for an empty scene)."""
+    return scene_bounds(scene).diagonal
+
+
+def warn_short_bbox(scene, bounds):
+    """Warn when ``scene.bbox()`` misses part of the geometry and an infinite emitter is present:
+    Mitsuba's emitter sampling then ends shadow rays 2·R from the shading point (R the radius
+    around the short bbox), so they can pass walls: Mitsuba's ``path``, and the shadow rays of
+    rex's eye pass, leak light; ``mi.load_file(..., optimize=False)`` avoids the merge."""
+    infinite = [e for e in scene.emitters()
+                if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)]
+    if not infinite:
+        return
     bbox = scene.bbox()
-    if not bbox.valid():
-        return 1.0
-    d = float(dr.norm(bbox.extents()))
-    return d if d > 0 and math.isfinite(d) else 1.0
+    lo = np.asarray(bbox.min, np.float64).ravel()[:3]
+    hi = np.asarray(bbox.max, np.float64).ravel()[:3]
+    tol = 1e-4 * bounds.diagonal
+    if not (np.all(lo <= np.asarray(bounds.lo) + tol)
+            and np.all(hi >= np.asarray(bounds.hi) - tol)):
+        warnings.warn("scene.bbox() misses part of the geometry (Mitsuba merges rectangles that "
+                      "share a BSDF into a mesh whose bbox leaves them out): infinite emitters' "
+                      "shadow rays can leak through walls in Mitsuba's path and rex's shadow "
+                      "rays; load the scene with optimize=False to avoid it", stacklevel=3)
+
+
+def scene_media(scene) -> list:
+    """``(where, medium)`` of every participating medium the scene attaches to its sensors,
+    emitters and shapes."""
+    found = []
+    for i, sensor in enumerate(scene.sensors()):
+        found.append((f"sensor {sensor.id() or i!r}", sensor.get_medium()))
+    for i, emitter in enumerate(scene.emitters()):
+        found.append((f"emitter {emitter.id() or i!r}", emitter.get_medium()))
+    for i, shape in enumerate(scene.shapes()):
+        name = shape.id() or f"{shape.class_name()} #{i}"
+        found.append((f"interior of shape {name!r}", shape.interior_medium()))
+        found.append((f"exterior of shape {name!r}", shape.exterior_medium()))
+    return [(where, m) for where, m in found if m is not None]
+
+
+def check_no_media(scene):
+    """rex has no volumetric transport (no photon scatters or is absorbed in a medium, no eye
+    path attenuates): refuse a scene with media rather than render it silently wrong."""
+    media = scene_media(scene)
+    if media:
+        names = "; ".join(f"{m.class_name()} {m.id()!r} ({where})" if m.id() else
+                          f"{m.class_name()} ({where})" for where, m in media[:4])
+        more = f" and {len(media) - 4} more" if len(media) > 4 else ""
+        raise ValueError(f"rex cannot render participating media, and this scene has: "
+                         f"{names}{more}. Use Mitsuba's 'volpath' integrator for it.")
 
 
 def build_rexes(scene, settings: RexSettings, seed: int = 0, sensor=None) -> RexPrepass:
     """Size pass, light pass and rex build for ``scene`` (all random numbers from ``seed``)."""
     if settings.direct not in ("rex", "shadow"):
         raise ValueError(f"direct={settings.direct!r}: expected 'rex' or 'shadow'")
+    check_no_media(scene)
     t0 = time.perf_counter()
     tables = RexTables(scene)
+    warn_short_bbox(scene, tables.bounds)
     cap, seen, size_rays = size_pass(scene, tables, settings, seed, sensor)
     dr.sync_thread()
     t1 = time.perf_counter()
-    records, light_stats = light_pass(scene, tables, seen, settings, seed,
-                                      scene_diagonal(scene), settings.direct == "rex")
+    records, light_stats = light_pass(scene, tables, seen, settings, seed, tables.bounds,
+                                      settings.direct == "rex")
     t2 = time.perf_counter()
     rexes = build_rex_tree(tables, records, cap, settings, scene, seed)
     dr.sync_thread()

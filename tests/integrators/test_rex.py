@@ -80,11 +80,12 @@ def test_bucket_areas_sum_to_the_surface_area():
 
 
 def test_rex_surfaces_are_purely_diffuse():
-    assert is_rex_bsdf(mi.load_dict({"type": "diffuse"}).flags())
-    assert is_rex_bsdf(mi.load_dict({"type": "twosided",
-                                     "bsdf": {"type": "diffuse"}}).flags())
-    for bsdf in ("dielectric", "conductor", "roughconductor", "plastic"):
-        assert not is_rex_bsdf(mi.load_dict({"type": bsdf}).flags())
+    for to_rex in (lambda b: b, lambda b: b.flags()):  # the BSDF, or its flags alone
+        assert is_rex_bsdf(to_rex(mi.load_dict({"type": "diffuse"})))
+        assert is_rex_bsdf(to_rex(mi.load_dict({"type": "twosided",
+                                                "bsdf": {"type": "diffuse"}})))
+        for bsdf in ("dielectric", "conductor", "roughconductor", "plastic"):
+            assert not is_rex_bsdf(to_rex(mi.load_dict({"type": bsdf})))
 
 
 def _rect_solid_angle(x0, x1, y0, y1, h):
@@ -286,11 +287,20 @@ def test_hard_cases_stay_finite(case, direct, tmp_path):
 # ---------------------------------------------------------------------------------------------
 # The plugin
 # ---------------------------------------------------------------------------------------------
-def test_bad_parameters_fail_at_load_time():
-    for props in ({"photons": 0}, {"split_limit": 0}, {"direct": "both"}, {"debug": "x"},
-                  {"bucket_pixels": 0.0}, {"max_level": 99}, {"light_levels": -1}):
-        with pytest.raises(Exception):
-            mi.load_dict({"type": "rex", **props})
+@pytest.mark.parametrize("props, message", [
+    ({"photons": 0}, r"photons=0: must be >= 1"),
+    ({"split_limit": 0}, r"split_limit=0: must be >= 1"),
+    ({"direct": "both"}, r"direct='both': expected one of rex, shadow"),
+    ({"debug": "x"}, r"debug='x': expected one of none, leaves, edges, buckets"),
+    ({"bucket_pixels": 0.0}, r"bucket_pixels=0(\.0)?: must be > 0"),
+    ({"max_level": 99}, r"max_level=99: must be <= 20"),
+    ({"light_levels": -1}, r"light_levels=-1: must be >= 0"),
+])
+def test_bad_parameters_fail_at_load_time(props, message):
+    """The constructor's ValueError names the parameter; Mitsuba's plugin loader re-raises it
+    as a RuntimeError whose message ends with the ValueError's traceback line."""
+    with pytest.raises(RuntimeError, match="ValueError: " + message):
+        mi.load_dict({"type": "rex", **props})
 
 
 def test_stats_reuse_debug_and_determinism():
