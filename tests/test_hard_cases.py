@@ -1,4 +1,4 @@
-"""The cross-integrator hard-case matrix (DESIGN.md "Hard cases" and "Accuracy").
+"""The cross-integrator hard-case matrix (docs/design.md "Hard cases" and "Accuracy").
 
 Every integrator × every hard scene of :mod:`hard_scenes` (16×16 pixels, small prepasses):
 
@@ -93,16 +93,10 @@ REFERENCE = {"bsdf_dielectric_roughdielectric_thindielectric_mask": "volpath"}
 #: (scene, integrator) → regex of the message of a legitimate refusal
 REFUSALS = {}
 
-#: (scene, integrator) → what was measured; the cell is expected to fail (strict)
-_BUMP = ("bumpmap walls read {:.3f} × path (z = {:.1f}); path = volpath = 0.0746, the light "
-         "tracer ptracer 0.0807: a bump-mapped diffuse BSDF is cached, and its radiosity, "
-         "light-traced with shading normals, is not the radiance path transports "
-         "(non-reciprocal shading normals)")
-XFAIL = {
-    ("bsdf_bumpmap", "radiosity_gather"): _BUMP.format(1.110, 8.7),
-    ("bsdf_bumpmap", "spike_gather"): _BUMP.format(1.105, 11.3),
-    ("bsdf_bumpmap", "radiance_cache"): _BUMP.format(1.101, 11.2) + " (bias allowed 0.0038)",
-}
+#: (scene, integrator) → what was measured; the cell is expected to fail (strict). Empty: the
+#: bump-mapped walls (1.10–1.11 × path when cached) are path traced since bumpmap and normalmap
+#: are not Lambertian (mi_twopass.scene.lambertian).
+XFAIL = {}
 
 
 def cells(scenes, integrators=INTEGRATORS):

@@ -1,7 +1,7 @@
 """``radiance_cache``: SH far field + near-field geometry correction.
 
 Arikan, Forsyth & O'Brien 2005, "Radiance Caching and Local Geometry Correction"
-(shared/papers/004_*), §4 (far field), §5 (B_C), §7 (BVH), §8.1 (fake GI).
+(docs/design.md "Papers"), §4 (far field), §5 (B_C), §7 (BVH), §8.1 (fake GI).
 """
 from __future__ import annotations
 
@@ -13,10 +13,11 @@ import drjit as dr
 import mitsuba as mi
 
 from ..prepass.near_field import build_near_field, buried_triangles, split_near_triangles
-from ..prepass.radiance_cache import (NOT_DIFFUSE, build_radiance_cache,  # noqa: F401
-                                      cached_surface, collect_shading_points, default_alpha,
-                                      purely_diffuse, scene_bounds, scene_diagonal)
+from ..prepass.radiance_cache import (build_radiance_cache, cached_surface,
+                                      collect_shading_points, default_alpha, scene_bounds,
+                                      scene_diagonal)
 from ..prepass.radiosity import receiving_elements, solve_radiosity
+from ..scene.lambertian import LambertianShapes
 from ..scene.patches import build_patches
 from .base import TwoPassIntegrator, read_bool, read_choice, read_float, read_int
 from .pathtrace import (MAX_DELTA_DEPTH, by_component, emission_mis, first_nondelta_hit,
@@ -38,12 +39,6 @@ LAMBDA_MAX = 10.0
 #: the coarse radiosity solution, RBF interpolation, the near field's visibility assumption):
 #: measured −1 … −10 % (class docstring, "Bias"); tests/integrators/test_radiance_cache*.py
 BIAS_BOUND = 0.15
-
-
-def shape_is_purely_diffuse(shape) -> bool:
-    """The shape's BSDF is purely diffuse reflection (:func:`purely_diffuse` of its flags)."""
-    bsdf = shape.bsdf()
-    return bsdf is not None and purely_diffuse(int(bsdf.flags()))
 
 
 def check_no_media(scene):
@@ -131,7 +126,9 @@ class CacheStructure:
     """The prepass output: ``alpha`` (the near-field radius), ``patches``, ``elements`` (or
     None), ``solution`` (None with fake_gi), ``cache``
     (:class:`~mi_twopass.prepass.radiance_cache.RadianceCache`), ``near``
-    (:class:`~mi_twopass.prepass.near_field.NearField`) and ``scale`` (the scene's diagonal);
+    (:class:`~mi_twopass.prepass.near_field.NearField`), ``scale`` (the scene's diagonal) and
+    ``lambertian`` (:class:`~mi_twopass.scene.lambertian.LambertianShapes`: where a vertex may
+    read the cache);
     ``cache`` is None where no vertex reads it (a finite max_depth, component "direct"). A
     plain class, indexable by name: Dr.Jit does not traverse it as loop state."""
 
@@ -376,7 +373,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 "the cache is not used, the image is path traced", stacklevel=2)
         if (not self.reads_cache or unbounded) and self.debug == "none":  # plain path tracing
             return CacheStructure(alpha=0.0, patches=None, solution=None, cache=None, near=None,
-                                  split_complete=True, scale=scale, elements=None)
+                                  split_complete=True, scale=scale, elements=None,
+                                  lambertian=LambertianShapes(scene))
         sensor = getattr(self, "prepass_sensor", None)
         if sensor is None and len(scene.sensors()):
             sensor = scene.sensors()[0]
@@ -384,8 +382,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
             if sensor is not None else None
         alpha = self.alpha(scene, None if points is None else points[0])
         patches = build_patches(scene, max_patches=self.max_patches, seed=seed)
-        shapes = scene.shapes()
-        shape_diffuse = np.array([shape_is_purely_diffuse(sh) for sh in shapes], dtype=bool)
+        lambertian = LambertianShapes(scene)
+        shape_diffuse = lambertian.per_shape
         # a near triangle sends R_t only from a cached patch (as cached_surface at render time)
         patch_diffuse = shape_diffuse[np.asarray(patches.shape_index, dtype=np.int64)] \
             & np.asarray(patches.is_diffuse, dtype=bool)
@@ -421,7 +419,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                                 cell_size=self.cell_rel * alpha)
         return CacheStructure(alpha=alpha, patches=patches, solution=solution, cache=cache,
                               near=near, split_complete=split_complete, scale=scale,
-                              elements=elements)
+                              elements=elements, lambertian=lambertian)
 
     def prepass_stats(self, s):
         if s["cache"] is None:
@@ -502,7 +500,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
             bsdf = si.bsdf(ray)
             flags = bsdf.flags()
-            diffuse = si.is_valid() & purely_diffuse(flags)
+            diffuse = s["lambertian"].at(si, active)
             # The BSDF ray of a cache vertex that meets a diffuse surface with a radiosity patch
             # ends here: the light that surface reflects is the cache term (its emission was
             # just counted). Elsewhere (glossy, glass, a shape without patches) it goes on.

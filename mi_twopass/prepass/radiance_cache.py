@@ -48,6 +48,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import sh
+from ..scene.lambertian import LambertianShapes, lambertian_flags
 
 #: delta bounces followed when collecting shading points
 MAX_DELTA_BOUNCES = 16
@@ -70,34 +71,15 @@ def _count(mask) -> int:
     return int(np.asarray(dr.count(mask)).reshape(-1)[0])
 
 
-#: BSDF lobes that make a surface "not purely diffuse": its outgoing radiance is not ρ/π × its
-#: irradiance, so neither the cache nor the radiosity solution may stand for it
-NOT_DIFFUSE = (int(mi.BSDFFlags.Null) | int(mi.BSDFFlags.DiffuseTransmission)
-               | int(mi.BSDFFlags.Glossy) | int(mi.BSDFFlags.Delta)
-               | int(mi.BSDFFlags.Delta1D))
-
-
-def purely_diffuse(flags):
-    """Whether BSDF ``flags`` (a Python int, or ``mi.UInt32`` per lane) describe a purely
-    diffuse reflector: a diffuse-reflection lobe and no glossy, delta, transmission or null lobe
-    (``diffuse``, ``twosided`` diffuse; not ``plastic``, ``blendbsdf``, ``roughconductor``,
-    ``thindielectric``, ``mask``...)."""
-    if isinstance(flags, (int, mi.BSDFFlags)):
-        flags = int(flags)
-        return bool(flags & int(mi.BSDFFlags.DiffuseReflection)) and not flags & NOT_DIFFUSE
-    flags = mi.UInt32(flags)
-    return ((flags & int(mi.BSDFFlags.DiffuseReflection)) != 0) & ((flags & NOT_DIFFUSE) == 0)
-
-
 def cached_surface(patches, elements, si, active=True):
-    """``mi.Bool``: the cache holds the light reflected at ``si`` toward its ray — a purely
-    diffuse surface (:func:`purely_diffuse`) whose patch (and element, with ``elements``) on the
+    """``mi.Bool``: the cache holds the light reflected at ``si`` toward its ray — a Lambertian
+    surface (:mod:`mi_twopass.scene.lambertian`; patches are diffuse only there) whose patch (and element, with ``elements``) on the
     side hit is diffuse and not cut by geometry (``is_diffuse``, see
     :mod:`mi_twopass.scene.patches`). The SH gather reads the radiosity only there, and the
     render's path ends only there; everywhere else (glossy, glass, a split patch, a shape
     without patches, the black back of a one-sided surface) the path is traced on."""
     ok = mi.Bool(active) & si.is_valid()
-    ok &= purely_diffuse(si.bsdf().flags())
+    ok &= lambertian_flags(si.bsdf().flags())
     ok &= patches.is_diffuse_at(si, ok)
     if elements is not None:
         ok &= elements.is_diffuse_at(si, ok)
@@ -143,8 +125,8 @@ def scene_diagonal(scene) -> float:
 
 def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int = 0):
     """First non-delta hits of camera rays through a jittered grid of ≤ ``max_points`` film
-    positions, kept where the surface is purely diffuse (the only vertices that read the cache;
-    a camera ray that first meets a glossy or mixed surface gives no point) → ``(p (n, 3),
+    positions, kept where the surface is Lambertian (the only vertices that read the cache;
+    a camera ray that first meets a glossy, mixed or bump-mapped surface gives no point) → ``(p (n, 3),
     normal (n, 3) facing the viewer, rays traced)`` numpy."""
     if sensor is None:
         sensor = scene.sensors()[0]
@@ -166,6 +148,7 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     nrm = dr.zeros(mi.Vector3f, w * h)
     eps = 1e-5 * scene_diagonal(scene)
     rays = 0
+    lambertian = LambertianShapes(scene)
     for _ in range(MAX_DELTA_BOUNCES):  # a few bounces over the whole batch, not per lane
         rays += _count(active)
         si = scene.ray_intersect(ray, active)
@@ -173,7 +156,7 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
         bsdf = si.bsdf(ray)
         smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         stop = active & smooth
-        keep = stop & purely_diffuse(bsdf.flags())
+        keep = stop & lambertian.at(si, stop)
         n = dr.select(dr.dot(si.n, ray.d) > 0, -si.n, si.n)
         p[keep] = si.p
         nrm[keep] = n

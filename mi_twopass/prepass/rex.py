@@ -1,7 +1,7 @@
 """Adaptive radiosity textures (rexes) and the passes that fill them.
 
 Heckbert, "Adaptive Radiosity Textures for Bidirectional Ray Tracing", SIGGRAPH 1990
-(shared/papers/003_*). Names follow the paper: a *rex* is a quadtree histogram over the (u, v)
+(docs/design.md "Papers"). Names follow the paper: a *rex* is a quadtree histogram over the (u, v)
 parameter square of one diffuse surface region; its leaves are *buckets* that count photons and
 add up their power (flux); the *light quadtree* stratifies the emission of every light.
 
@@ -75,6 +75,7 @@ import numpy as np
 
 from .. import units
 from ..progress import progress
+from ..scene.lambertian import is_lambertian
 
 #: child index of a leaf
 LEAF = 0xFFFFFFFF
@@ -105,59 +106,12 @@ EXPOSURE_PROBES = 4
 #: delta / glossy bounces a pilot or size ray follows before giving up
 MAX_CHAIN = 16
 
-_DIFFUSE = int(mi.BSDFFlags.DiffuseReflection)
-_NOT_REX = int(mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta | mi.BSDFFlags.DiffuseTransmission
-               | mi.BSDFFlags.Null)
 _BACK = int(mi.BSDFFlags.BackSide)
 #: analytic shapes whose (u, v) square has an exact area rule (bucket_area)
 _UV_SHAPES = ("Rectangle", "Sphere", "Disk", "Cylinder")
 
 # seeds of the independent streams, so that passes never share random numbers
 _SALT_SIZE, _SALT_PROBE, _SALT_PILOT, _SALT_PHOTON, _SALT_NUMPY = 1, 2, 3, 4, 5
-
-
-#: BSDFs that are Lambertian reflection in the shading frame given the right children: the
-#: rex's ρ·E/π is exactly what they reflect. Anything else (bumpmap and normalmap, which tilt
-#: the frame; principled, plastics, ... with lobes the flags alone may not show; plugins we do
-#: not know) is path traced.
-_LAMBERTIAN = {"SmoothDiffuse": 0, "TwoSidedBRDF": 2, "BlendBSDF": 2}
-
-
-class _BSDFChildren(mi.TraversalCallback):
-    """Collects the BSDFs a BSDF holds (``twosided``'s two sides, ``blendbsdf``'s pair)."""
-
-    def __init__(self):
-        super().__init__()
-        self.children = []
-
-    def put(self, name, value, flags, cpptype=None):
-        if isinstance(value, mi.BSDF):
-            self.children.append(value)
-
-
-def _is_lambertian(bsdf) -> bool:
-    name = bsdf.class_name()
-    if name not in _LAMBERTIAN:
-        return False
-    if _LAMBERTIAN[name] == 0:
-        return True
-    cb = _BSDFChildren()
-    bsdf.traverse(cb)
-    return len(cb.children) > 0 and all(_is_lambertian(c) for c in cb.children)
-
-
-def is_rex_bsdf(bsdf) -> bool:
-    """A rex lives on surfaces whose BSDF is purely diffuse (Lambertian) reflection, one- or
-    two-sided: ``diffuse``, and ``twosided`` / ``blendbsdf`` made of such BSDFs. Given only
-    flags (an int), the flag test alone: necessary, not sufficient (a bumpmap or normalmap
-    around a diffuse BSDF has the same flags, but its tilted normal is not what the rex
-    holds)."""
-    flags = int(bsdf) if isinstance(bsdf, (int, np.integer)) or not hasattr(bsdf, "flags") \
-        else int(bsdf.flags())
-    if not (flags & _DIFFUSE) or (flags & _NOT_REX):
-        return False
-    return isinstance(bsdf, (int, np.integer)) or not hasattr(bsdf, "flags") \
-        or _is_lambertian(bsdf)
 
 
 def depth_classes(max_depth: int) -> int:
@@ -236,7 +190,7 @@ class RexTables:
             name = shape.class_name()
             # instances (their shapes live in a shape group) and shapes with no exact (u, v)
             # area rule carry no rex: the eye pass path-traces them
-            if bsdf is None or not is_rex_bsdf(bsdf) or name == "Instance" or \
+            if bsdf is None or not is_lambertian(bsdf) or name == "Instance" or \
                     not (shape.is_mesh() or name in _UV_SHAPES):
                 continue
             flags = int(bsdf.flags())

@@ -49,6 +49,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .lambertian import is_lambertian
+
 #: shape kinds of the lookup table
 KIND_NONE, KIND_MESH, KIND_SPHERE, KIND_DISK, KIND_CYLINDER = 0, 1, 2, 3, 4
 INVALID = 0xFFFFFFFF
@@ -93,28 +95,15 @@ class _ShapeGeom:
     normal_matrix: np.ndarray | None = None  # 3x3 inverse transpose
 
 
-def is_pure_diffuse(flags) -> bool:
-    """True for BSDF flags of purely diffuse reflection (one- or two-sided Lambertian, also a
-    blend or bump map of such): the only surfaces whose outgoing radiance a radiosity value
-    B/π represents. Any glossy, delta, transmissive or null lobe (plastic, blendbsdf with a
-    conductor, principled, mask, thindielectric) makes the radiance view-dependent or lets
-    light through: such surfaces get no radiosity and the integrators trace paths on there."""
-    flags = int(flags)
-    return bool(flags & int(mi.BSDFFlags.DiffuseReflection)) and not (flags & _NOT_PURE_DIFFUSE)
-
-
-_NOT_PURE_DIFFUSE = int(mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta
-                        | mi.BSDFFlags.DiffuseTransmission | mi.BSDFFlags.Null)
-
-
 def _bsdf_sides(shape):
-    """(diffuse, two_sided) of a shape's BSDF from its flags: ``diffuse`` only for purely
-    diffuse reflection (:func:`is_pure_diffuse`)."""
+    """(diffuse, two_sided) of a shape's BSDF: ``diffuse`` only for Lambertian reflection
+    (:func:`~mi_twopass.scene.lambertian.is_lambertian`): the only surfaces whose outgoing
+    radiance a radiosity value B/π represents; the integrators trace paths on the others."""
     bsdf = shape.bsdf()
     if bsdf is None:
         return False, False
     flags = int(bsdf.flags())
-    diffuse = is_pure_diffuse(flags)
+    diffuse = is_lambertian(bsdf)
     two_sided = diffuse and bool(flags & int(mi.BSDFFlags.BackSide))
     return diffuse, two_sided
 

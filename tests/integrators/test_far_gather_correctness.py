@@ -4,7 +4,8 @@ answer) within a z-bound over independent renders.
 
 * A BSDF with a diffuse lobe and anything else (blendbsdf of diffuse and conductor, plastic) was
   taken for a diffuse patch: its radiosity was read as B/π (blendbsdf: 0.83× here, 2.8× on a
-  colleague's scene). Only purely diffuse reflection is cached now (``is_pure_diffuse``).
+  colleague's scene). Only Lambertian reflection is cached now
+  (``mi_twopass.scene.lambertian.is_lambertian``).
 * A virtual luminaire sampled from behind its own surface: the shadow ray ends on the surface
   from the back, unoccluded, and |cos| let the lit side's radiosity through a wall (veach-bidir
   1.37×). A patch emits into its own side only.

@@ -12,8 +12,8 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.evaluation.statistics import block_z_scores
-from mi_twopass.prepass.rex import (AREA_SPHERE, RexSettings, RexTables, build_rexes,
-                                    is_rex_bsdf)
+from mi_twopass.prepass.rex import AREA_SPHERE, RexSettings, RexTables, build_rexes
+from mi_twopass.scene.lambertian import is_lambertian
 
 T = mi.ScalarTransform4f
 SCENES = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(
@@ -81,11 +81,11 @@ def test_bucket_areas_sum_to_the_surface_area():
 
 def test_rex_surfaces_are_purely_diffuse():
     for to_rex in (lambda b: b, lambda b: b.flags()):  # the BSDF, or its flags alone
-        assert is_rex_bsdf(to_rex(mi.load_dict({"type": "diffuse"})))
-        assert is_rex_bsdf(to_rex(mi.load_dict({"type": "twosided",
+        assert is_lambertian(to_rex(mi.load_dict({"type": "diffuse"})))
+        assert is_lambertian(to_rex(mi.load_dict({"type": "twosided",
                                                 "bsdf": {"type": "diffuse"}})))
         for bsdf in ("dielectric", "conductor", "roughconductor", "plastic"):
-            assert not is_rex_bsdf(to_rex(mi.load_dict({"type": bsdf})))
+            assert not is_lambertian(to_rex(mi.load_dict({"type": bsdf})))
 
 
 def _rect_solid_angle(x0, x1, y0, y1, h):
@@ -97,7 +97,7 @@ def _rect_solid_angle(x0, x1, y0, y1, h):
 
 
 def test_point_light_irradiance_is_exact_at_bucket_centres():
-    """E = I·cosθ/r² (DESIGN.md's exact answer) in every bucket, within its photon noise."""
+    """E = I·cosθ/r² (docs/design.md "Exact answers") in every bucket, within its photon noise."""
     I, p = 5.0, np.array([0.3, -0.2, 1.0])
     scene = mi.load_dict({"type": "scene", "sensor": top_camera(32), "floor": floor(),
                           "light": {"type": "point", "position": p.tolist(),
@@ -158,7 +158,7 @@ def test_adaptive_light_quadtree_is_unbiased():
 
 @pytest.mark.parametrize("sky", ["constant", "envmap"])
 def test_uniform_sky_gives_pi_L(sky):
-    """A plane under a uniform sky of radiance L receives E = π·L (DESIGN.md's exact answer);
+    """A plane under a uniform sky of radiance L receives E = π·L (docs/design.md "Exact answers");
     photons start on the scene's bounding sphere (Mitsuba's ``sample_ray`` of infinite lights)."""
     Ls = 0.7
     em = {"type": "constant", "radiance": rgb(Ls)} if sky == "constant" else \
@@ -376,7 +376,7 @@ def test_converges_to_path_on_a_cornell_box(direct):
 @pytest.mark.parametrize("direct", ["rex", "shadow"])
 def test_furnace_is_exact(direct):
     """A closed diffuse cube of albedo ρ emitting Le inside has radiance Le/(1−ρ) everywhere
-    (DESIGN.md): photons bounce until Russian roulette ends them, each bounce depositing."""
+    (docs/design.md): photons bounce until Russian roulette ends them, each bounce depositing."""
     albedo, Le = 0.5, 1.0
     scene = mi.load_file(os.path.join(SCENES, "furnace.xml"), res=16, albedo=albedo, Le=Le)
     img = _renders(scene, {"type": "rex", "photons": 100_000, "direct": direct}, 6, 4)

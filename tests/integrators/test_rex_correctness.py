@@ -42,7 +42,8 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.evaluation.statistics import block_means
-from mi_twopass.prepass.rex import (RexSettings, build_rexes, is_rex_bsdf, scene_bounds)
+from mi_twopass.prepass.rex import RexSettings, build_rexes, scene_bounds
+from mi_twopass.scene.lambertian import is_lambertian
 
 T = mi.ScalarTransform4f
 Z_MAX = 4.0
@@ -469,9 +470,9 @@ def test_lambertian_bsdfs_only():
            BSDFS["blend_two_diffuse"](), BSDFS["twosided_two_albedos"]()]
     no = [BSDFS[k]() for k in BSDFS if k not in ("blend_two_diffuse", "twosided_two_albedos")]
     for d in yes:
-        assert is_rex_bsdf(mi.load_dict(d)), d["type"]
+        assert is_lambertian(mi.load_dict(d)), d["type"]
     for d in no:
-        assert not is_rex_bsdf(mi.load_dict(d)), d["type"]
+        assert not is_lambertian(mi.load_dict(d)), d["type"]
 
 
 def test_capped_bucket_still_refines():
