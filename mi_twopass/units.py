@@ -1,4 +1,4 @@
-"""Radiometric conversions, written once (DESIGN.md "Units").
+"""Radiometric conversions, written once (docs/design.md "Units").
 
 Mitsuba works in radiance L [W/(m² sr)]. Radiosity B [W/m²] is the power leaving a surface per
 unit area; for a Lambertian surface L = B/π. An emitter of radiance Le has emitted radiosity π·Le.

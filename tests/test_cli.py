@@ -198,6 +198,7 @@ def test_check_on_a_scene_without_res(tmp_path, ref_cache, capsys):
     assert code == 0
     data = json.loads((tmp_path / "v.json").read_text())
     assert (data["meta"]["width"], data["meta"]["height"]) == (32, 32)
+    assert [r["integrator"] for r in data["rows"]] == ["radiosity_gather", "spike_gather"]
     for row in data["rows"]:
         assert row["refused"] or (row["mean_ratio"] > 0 and row["seconds"] > 0)
     assert sorted(os.listdir(os.path.dirname(scene))) == before

@@ -1,4 +1,4 @@
-"""Speed-vs-error harness (DESIGN.md "Measuring speed against error").
+"""Speed-vs-error harness (docs/design.md "Measuring speed against error").
 
 For each integrator: render at doubling spp (1, 2, 4, ...), each point with a *fresh* integrator so
 its prepass is paid again and counted; the point's cost is the wall time of ``mi.render`` with the

@@ -5,7 +5,7 @@ accepts, Mitsuba tensors included).
 """
 import numpy as np
 
-#: ε of relMSE: keeps dark pixels from dominating (DESIGN.md "Measuring speed against error").
+#: ε of relMSE: keeps dark pixels from dominating (docs/design.md "Measuring speed against error").
 RELMSE_EPS = 0.01
 
 

@@ -1,6 +1,6 @@
 """``radiosity_gather``: radiosity prepass + per-pixel gather (Rushmeier's implicit gather, GSII).
 
-Zimmerman & Shirley 1995 (shared/papers/000_*), §2.3 (implicit gather) and §2.5 (GSII).
+Zimmerman & Shirley 1995 (docs/design.md "Papers"), §2.3 (implicit gather) and §2.5 (GSII).
 """
 from __future__ import annotations
 

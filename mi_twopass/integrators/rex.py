@@ -1,7 +1,7 @@
 """``rex``: bidirectional ray tracing with adaptive radiosity textures (Heckbert 1990).
 
 Heckbert, "Adaptive Radiosity Textures for Bidirectional Ray Tracing", SIGGRAPH 1990
-(shared/papers/003_*): §3.4 (size, light and eye passes), §4 (implementation). The prepass
+(docs/design.md "Papers"): §3.4 (size, light and eye passes), §4 (implementation). The prepass
 (size pass, light pass, rex build) lives in :mod:`mi_twopass.prepass.rex`; this module is the
 plugin and its eye pass.
 """

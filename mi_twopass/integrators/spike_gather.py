@@ -1,5 +1,5 @@
 """``spike_gather``: radiosity prepass + spike lists on a grid + one explicit and one implicit ray
-per gather (Zimmerman & Shirley 1995, shared/papers/000_*, §2.6, §3 and §4).
+per gather (Zimmerman & Shirley 1995, docs/design.md "Papers", §2.6, §3 and §4).
 """
 from __future__ import annotations
 

@@ -39,7 +39,7 @@ def test_spec_parsing():
     assert harness.parse_integrator_spec("path") == ("path", {})
     assert harness.parse_integrator_spec("a:r_thresh=0.5:max_depth=3:mode=x") == (
         "a", {"r_thresh": 0.5, "max_depth": 3, "mode": "x"})
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"^integrator spec 'a:oops': 'oops' is not key=value$"):
         harness.parse_integrator_spec("a:oops")
 
 

@@ -52,7 +52,9 @@ def test_unsupported_variant_says_which_variants_work(variant):
     try:
         mi.set_variant(variant)
         for name in PLUGINS:
-            with pytest.raises(RuntimeError) as e:
+            with pytest.raises(RuntimeError, match=rf"UnsupportedVariantError: integrator "
+                                                   rf"'{name}' \(mi_twopass\) does not run "
+                                                   rf"under the variant '{variant}'") as e:
                 mi.load_dict({"type": name})
             msg = str(e.value)
             assert "not found" not in msg
