@@ -259,3 +259,21 @@ def test_bsdf_on_the_walls_matches_path(name, integrator):
     """Every BSDF plugin of Mitsuba 3 on the walls of the small lit box, four to a box
     (:data:`hard_scenes.BSDF_GROUPS` says which wall has which)."""
     assert_same_mean_as_path(name, integrator)
+
+
+@pytest.mark.parametrize("name,integrator", cells(hs.SCALED_TO_UNIT))
+def test_sub_millimetre_scene_renders_as_the_unit_scene(name, integrator):
+    """Every offset is relative to the scene's size (mi_twopass.rays, mi_twopass.scene.bounds):
+    the box scaled by 1e-4 gives the image of the unit box, compared with ``path`` there."""
+    a = method_means(name, integrator)
+    if a is None:
+        return
+    b = path_reference(hs.SCALED_TO_UNIT[name][0])
+    se = float(np.hypot(a.se(), b.se()))
+    d = a.mean() - b.mean()
+    z = d / se if se > 0 else (0.0 if d == 0 else np.inf)
+    print(f"HC {name} {integrator} mean {a.mean():.6g} unit-scene path {b.mean():.6g} "
+          f"ratio {a.mean() / b.mean():.4f} z {z:.2f}")
+    assert abs(d) <= Z_MAX * se, (
+        f"{integrator} on {name}: mean {a.mean():.5g} vs the unit scene's path {b.mean():.5g} "
+        f"(ratio {a.mean() / b.mean():.4f}, z = {z:.1f})")

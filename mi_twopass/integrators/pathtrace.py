@@ -11,6 +11,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..rays import spawn_ray_to
+
 
 def path_start(ray):
     """The loop state of a path at its camera ray, in the order the gather loops unpack it:
@@ -39,14 +41,15 @@ def emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active):
     return w * ds.emitter.eval(si, active)
 
 
-def emitter_sample_mis(scene, si, bsdf, ctx, u, active):
+def emitter_sample_mis(scene, si, bsdf, ctx, u, active, scale=1.0):
     """One emitter sample at ``si`` (Mitsuba's ``sample_emitter_direction``) and its shadow ray:
     ``(f·Le·w_MIS/p, cast)``: the BSDF-weighted contribution (β not included) and the lanes that
     traced a shadow ray (occluded ones included: the ray statistics count them). MIS weight
-    p_em² / (p_em² + p_bsdf²), 1 for delta emitters."""
+    p_em² / (p_em² + p_bsdf²), 1 for delta emitters. The shadow ray's offset is relative to
+    ``scale`` (:func:`mi_twopass.rays.spawn_ray_to`; 1: Mitsuba's own)."""
     ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
     cast = active & (ds.pdf != 0.0) & dr.any(em_weight != 0.0)
-    visible = cast & ~scene.ray_test(si.spawn_ray_to(ds.p), cast)
+    visible = cast & ~scene.ray_test(spawn_ray_to(si, ds.p, scale), cast)
     bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), visible)
     w = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
     return dr.select(visible, w * bsdf_val * em_weight, 0.0), cast
@@ -105,5 +108,5 @@ def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
     return si, ray, beta, Le, found
 
 
-__all__ = ["first_nondelta_hit", "path_start", "mis_weight", "emission_mis", "emitter_sample_mis", "by_component",
-           "russian_roulette"]
+__all__ = ["first_nondelta_hit", "path_start", "mis_weight", "emission_mis", "emitter_sample_mis",
+           "by_component", "russian_roulette"]

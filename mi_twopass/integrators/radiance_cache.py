@@ -14,14 +14,15 @@ import mitsuba as mi
 
 from ..prepass.near_field import build_near_field, buried_triangles, split_near_triangles
 from ..prepass.radiance_cache import (build_radiance_cache, cached_surface,
-                                      collect_shading_points, default_alpha, scene_bounds,
-                                      scene_diagonal)
+                                      collect_shading_points, default_alpha)
 from ..prepass.radiosity import receiving_elements, solve_radiosity
+from ..scene.bounds import scene_bounds, scene_diagonal
 from ..scene.lambertian import LambertianShapes
 from ..scene.patches import build_patches
 from .base import TwoPassIntegrator, read_bool, read_choice, read_float, read_int
-from .pathtrace import (MAX_DELTA_DEPTH, by_component, emission_mis, first_nondelta_hit,
-                        mis_weight, path_start, russian_roulette)
+from ..rays import spawn_ray
+from .pathtrace import (MAX_DELTA_DEPTH, by_component, emission_mis, emitter_sample_mis,
+                        first_nondelta_hit, path_start, russian_roulette)
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
 
@@ -72,10 +73,10 @@ def infinite_emitters_unbounded(scene) -> str:
     if not infinite:
         return ""
     bounds = scene_bounds(scene)
-    if bounds is None:
+    if bounds.empty:
         return ""
     box = scene.bbox()
-    lo, hi = bounds
+    lo, hi = np.asarray(bounds.lo), np.asarray(bounds.hi)
     tol = 1e-4 * float(np.linalg.norm(hi - lo))
     if box.valid() and np.all(np.asarray(box.min, dtype=np.float64).ravel() <= lo + tol) \
             and np.all(np.asarray(box.max, dtype=np.float64).ravel() >= hi - tol):
@@ -88,38 +89,6 @@ def _box_str(box) -> str:
         return "invalid"
     lo, hi = (np.asarray(v, dtype=np.float64).ravel().round(6).tolist() for v in (box.min, box.max))
     return f"{lo} … {hi}"
-
-
-def spawn_offset(si, d, scale):
-    """Origin of a ray leaving ``si`` in direction ``d``: Mitsuba's offset along the geometric
-    normal, RayEpsilon × (1 + max|p|), with the 1 replaced by ``scale`` = min(1, the scene's
-    bounding-box diagonal): the same as Mitsuba's for scenes of a metre or more, relative to the
-    scene below (Mitsuba's absolute 9e-5 m offset crosses a 1e-4 m scene)."""
-    mag = mi.math.RayEpsilon * (scale + dr.max(dr.abs(si.p)))
-    mag = dr.detach(dr.mulsign(mag, dr.dot(si.n, d)))
-    return dr.fma(mag, si.n, si.p)
-
-
-def spawn_ray(si, d, scale):
-    return mi.Ray3f(spawn_offset(si, d, scale), d, si.time, si.wavelengths)
-
-
-def spawn_ray_to(si, target, scale):
-    o = spawn_offset(si, target - si.p, scale)
-    d = target - o
-    dist = dr.norm(d)
-    return mi.Ray3f(o, d / dist, dist * (1.0 - mi.math.ShadowEpsilon), si.time, si.wavelengths)
-
-
-def emitter_sample(scene, si, bsdf, ctx, u, scale, active):
-    """:func:`~mi_twopass.integrators.pathtrace.emitter_sample_mis` with the scene-relative
-    shadow-ray offset of :func:`spawn_ray_to`: ``(f·Le·w_MIS/p, shadow ray cast)``."""
-    ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
-    cast = active & (ds.pdf != 0.0) & dr.any(em_weight != 0.0)
-    visible = cast & ~scene.ray_test(spawn_ray_to(si, ds.p, scale), cast)
-    bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), visible)
-    w = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
-    return dr.select(visible, w * bsdf_val * em_weight, 0.0), cast
 
 
 class CacheStructure:
@@ -194,8 +163,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     the camera sees no purely diffuse surface in is rendered as ``path``.
 
     **Scale.** Every offset is relative to the scene's size: rays leave a surface by Mitsuba's
-    RayEpsilon × (min(1, bbox diagonal) + |p|) (:func:`spawn_offset`; Mitsuba's own is
-    absolute below 1 m), so a scene scaled by 1e-4 or 1e4 renders the same image.
+    RayEpsilon × (min(1, bbox diagonal) + |p|) (:func:`mi_twopass.rays.spawn_offset`;
+    Mitsuba's own is absolute below 1 m), shadow rays included, so a scene scaled by 1e-4 or 1e4 renders the same image.
 
     **Infinite emitters in a box that misses shapes.** Mitsuba 3.9.1 gives the mesh it merges
     from shapes sharing a BSDF an invalid ``bbox()``, and a sky, sun or envmap then shoots its
@@ -474,7 +443,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         cache, ρ/π (B_D + λ B_C), and the BSDF ray there goes on only if it meets a surface
         that is not purely diffuse (whose outgoing light the cache does not hold)."""
         s = self.structure
-        scale = dr.opaque(mi.Float, min(1.0, s["scale"]))  # see spawn_offset
+        scale = dr.opaque(mi.Float, min(1.0, s["scale"]))  # see mi_twopass.rays.spawn_offset
         max_depth = self.depth_bound
         want_direct, want_indirect = self.want_direct, self.want_indirect
         reads_cache = self.reads_cache and s["cache"] is not None
@@ -514,8 +483,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 active_next &= first_vertex | ~smooth
 
             # Emitter sampling (MIS), at every non-delta vertex as in path.
-            Ld, cast = emitter_sample(scene, si, bsdf, ctx, sampler.next_2d(), scale,
-                                      active_next & smooth)
+            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
+                                          active_next & smooth, scale)
             n_explicit += dr.select(cast, 1, 0)
             L += by_component(beta * Ld, first_vertex, want_direct, want_indirect)
 

@@ -12,6 +12,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..prepass.radiosity import receiving_elements, solve_radiosity
+from ..rays import spawn_ray, spawn_ray_to
+from ..scene.bounds import ray_scale
 from ..scene.patches import build_patches
 from ..scenefile import SceneFileError, load_scene
 from .base import FarGatherIntegrator, read_choice
@@ -180,7 +182,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
             return sol.patch_reflected_radiance(pid, counted), far
         return sol.reflected_radiance(si_massing if self.prepass_scene_path else si, counted), far
 
-    def sample_virtual(self, scene, sampler, si, bsdf, ctx, r_thresh, active):
+    def sample_virtual(self, scene, sampler, si, bsdf, ctx, r_thresh, active, scale=1.0):
         """One explicit sample of a virtual luminaire: f · (B_r/π) · G / pdf, for |y−x| ≥ r_thresh."""
         if self.vl_distr is None:
             return mi.Spectrum(0.0), mi.Bool(False)
@@ -197,7 +199,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         # however unoccluded the shadow ray (it ends on the surface from behind)
         cos_y = dr.dot(n, -wo_world)
         ok = active & (dist >= r_thresh) & (pdf_area > 0) & (dist2 > 0) & (cos_y > 0)
-        shadow = si.spawn_ray_to(p)
+        shadow = spawn_ray_to(si, p, scale)
         visible = ok & ~scene.ray_test(shadow, ok)
         wo = si.to_local(wo_world)
         f = bsdf.eval(ctx, si, wo, visible)
@@ -217,6 +219,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         """The GSII estimator of the class docstring, one path per lane."""
         sol = self.structure
         r_thresh = mi.Float(self.r_thresh(scene))
+        scale = dr.opaque(mi.Float, ray_scale(scene))  # ray offsets (mi_twopass.rays)
         max_depth = self.depth_bound
         want_direct = self.want_direct
         want_indirect = self.want_indirect
@@ -250,14 +253,14 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
 
             # Explicit gather from the emitters (Mitsuba's emitter sampling, MIS).
             Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
-                                          active_next & smooth)
+                                          active_next & smooth, scale)
             n_explicit += dr.select(cast, 1, 0)
             L += by_component(beta * Ld, first_vertex, want_direct, want_indirect)
 
             # Explicit gather from virtual luminaires (GSII reclassified bright reflectors).
             if want_indirect:
                 Lv, vl_ray = self.sample_virtual(scene, sampler, si, bsdf, ctx, r_thresh,
-                                                 active_next & smooth)
+                                                 active_next & smooth, scale)
                 L += beta * Lv
                 n_explicit += dr.select(vl_ray, 1, 0)
 
@@ -265,7 +268,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
             bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active_next)
             is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             n_nondelta += dr.select(active_next & ~is_delta, 1, 0)
-            ray = si.spawn_ray(si.to_world(bs.wo))
+            ray = spawn_ray(si, si.to_world(bs.wo), scale)
             beta *= bsdf_weight
             eta *= bs.eta
             prev_si = dr.detach(si, True)

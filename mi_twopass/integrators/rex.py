@@ -11,8 +11,8 @@ import drjit as dr
 import mitsuba as mi
 
 from .. import units
-from ..prepass.rex import (KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes,
-                           spawn_ray)
+from ..prepass.rex import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes
+from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .pathtrace import (by_component, emission_mis, emitter_sample_mis, path_start,
                         russian_roulette)
@@ -118,11 +118,10 @@ class RexIntegrator(TwoPassIntegrator):
     direction on the eye side (the adjoint of what ``path`` integrates), exact for BSDFs that
     are not symmetric too (normal and bump maps: the shading-normal correction with the
     surface's own normal left photons off a normal-mapped wall 4.5 % too bright). The rays rex
-    spawns (photons, eye continuations) are offset relative to the scene's size, not by
-    Mitsuba's absolute ≥ 89 µm: the image of a 0.2 mm Cornell box is that of the 2 m one
-    (Mitsuba's own ``path`` gives 0.90× of it). The eye pass's shadow rays (the shared
-    ``pathtrace.emitter_sample_mis``) still start at Mitsuba's offset, and lose the shadows
-    of occluders closer than that (``direct="rex"`` casts none). When ``scene.bbox()`` misses
+    spawns (photons, eye continuations, shadow rays) are offset relative to the scene's size
+    (:mod:`mi_twopass.rays`), not by Mitsuba's absolute ≥ 89 µm: the image of a 0.2 mm
+    Cornell box is that of the 2 m one (Mitsuba's own ``path`` gives 0.90× of it), shadows of
+    occluders closer than 89 µm included. When ``scene.bbox()`` misses
     merged rectangles and an infinite emitter is present, Mitsuba's emitter sampling also ends
     shadow rays short of distant walls (``path`` leaks as well); the prepass warns then.
 
@@ -260,6 +259,7 @@ class RexIntegrator(TwoPassIntegrator):
         class); vertices deeper than the classes are path traced."""
         pre = self.structure
         tables, rexes = pre.tables, pre.rexes
+        scale = dr.opaque(mi.Float, tables.scale)  # a ray offset's length (mi_twopass.rays)
         shadow = self.direct == "shadow"
         max_depth = self.depth_bound
         finite = self.max_depth > 0
@@ -309,7 +309,7 @@ class RexIntegrator(TwoPassIntegrator):
             glossy = valid & ~on_rex_surface & smooth
             can_go = depth + 1 < max_depth
             Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
-                                          (glossy | (at_rex & shadow)) & can_go)
+                                          (glossy | (at_rex & shadow)) & can_go, scale)
             n_explicit += dr.select(cast, mi.UInt32(1), mi.UInt32(0))
             L += by_component(beta * Ld, first, want_direct, want_indirect)
 
@@ -320,7 +320,7 @@ class RexIntegrator(TwoPassIntegrator):
             bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(go), sampler.next_2d(go), go)
             is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             n_nondelta += dr.select(go & ~is_delta, mi.UInt32(1), mi.UInt32(0))
-            ray = spawn_ray(si, si.to_world(bs.wo), tables.scale)
+            ray = spawn_ray(si, si.to_world(bs.wo), scale)
             beta = dr.select(go, beta * bsdf_weight, beta)
             eta = dr.select(go, eta * bs.eta, eta)
             prev_si = dr.detach(si, True)
@@ -344,6 +344,7 @@ class RexIntegrator(TwoPassIntegrator):
         """Debug views of the rexes at the first diffuse hit (specular chains followed)."""
         pre = self.structure
         tables, rexes = pre.tables, pre.rexes
+        scale = dr.opaque(mi.Float, tables.scale)  # a ray offset's length (mi_twopass.rays)
         ctx = mi.BSDFContext()
         ray = mi.Ray3f(ray)
         beta = mi.Spectrum(1.0)
@@ -358,7 +359,7 @@ class RexIntegrator(TwoPassIntegrator):
             value = self.debug_value(rexes, si, bsdf, rex, uv, at_rex)
             result[at_rex] = beta * value
             bs, w = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), valid & ~at_rex)
-            ray = spawn_ray(si, si.to_world(bs.wo), tables.scale)
+            ray = spawn_ray(si, si.to_world(bs.wo), scale)
             beta *= w
             depth += 1
             active = valid & ~at_rex & (bs.pdf > 0) & (dr.max(beta) > 0) & (depth < 64)

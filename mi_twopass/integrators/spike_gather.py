@@ -9,6 +9,8 @@ import drjit as dr
 import mitsuba as mi
 
 from ..prepass.radiosity import receiving_elements, solve_radiosity
+from ..rays import spawn_ray, spawn_ray_to
+from ..scene.bounds import ray_scale
 from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
@@ -327,6 +329,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         pre = self.structure
         sol, src, grid = pre.solution, pre.sources, pre.grid
         r_thresh = mi.Float(self.r_thresh(scene))
+        scale = dr.opaque(mi.Float, ray_scale(scene))  # ray offsets (mi_twopass.rays)
         max_depth = self.depth_bound
         want_direct = self.want_direct
         want_indirect = self.want_indirect
@@ -451,7 +454,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             is_vl &= (dist >= r_thresh) & (pdf_a > 0) & (cos_y > 0) & (dist2 > 0) & (P_sel > 0)
 
             target = dr.select(is_vl, p_y, ds_l.p)
-            shadow = si.spawn_ray_to(target)
+            shadow = spawn_ray_to(si, target, scale)
             margin = 0.05 * src.gather("radius", sid, is_vl)  # flat sample points of curved
             shadow.maxt = dr.select(is_vl, dr.maximum(shadow.maxt - margin, 0.0), shadow.maxt)
             cast = is_em | is_vl | use_fb
@@ -477,7 +480,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
                                           active_next)
             is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
             n_nondelta += dr.select(active_next & ~is_delta, 1, 0)
-            ray = si.spawn_ray(si.to_world(bs.wo))
+            ray = spawn_ray(si, si.to_world(bs.wo), scale)
             beta *= bsdf_weight
             eta *= bs.eta
             prev_si = dr.detach(si, True)

@@ -55,7 +55,7 @@ import numpy as np
 
 from .. import sh
 from ..form_factor import point_to_disk_approx, polygon_form_factor
-from .radiance_cache import scene_diagonal
+from ..scene.bounds import scene_diagonal
 
 #: §7: a node farther than this many bounding radii is summed as a whole
 OPEN_FACTOR = 4.0

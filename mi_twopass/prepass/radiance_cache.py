@@ -48,6 +48,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import sh
+from ..scene.bounds import scene_diagonal
 from ..scene.lambertian import LambertianShapes, lambertian_flags
 
 #: delta bounces followed when collecting shading points
@@ -84,43 +85,6 @@ def cached_surface(patches, elements, si, active=True):
     if elements is not None:
         ok &= elements.is_diffuse_at(si, ok)
     return ok
-
-
-def scene_bounds(scene):
-    """``(lo (3,), hi (3,))`` of every shape of ``scene``, numpy; None when there is nothing.
-
-    Not ``scene.bbox()`` alone: in Mitsuba 3.9.1 the mesh that the loader makes by merging
-    shapes that share a BSDF reports an invalid ``bbox()``, so a scene whose walls were merged
-    has a scene bounding box of its other shapes only (or none at all); such meshes are
-    bounded by their vertices here."""
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-
-    def grow(a, b):
-        nonlocal lo, hi
-        a, b = np.asarray(a, dtype=np.float64).ravel(), np.asarray(b, dtype=np.float64).ravel()
-        if a.size == 3 and b.size == 3 and np.all(np.isfinite(a)) and np.all(np.isfinite(b)) \
-                and np.all(a <= b):
-            lo, hi = np.minimum(lo, a), np.maximum(hi, b)
-
-    box = scene.bbox()
-    if box.valid():
-        grow(box.min, box.max)
-    for shape in scene.shapes():
-        if shape.bbox().valid() or not shape.is_mesh():
-            continue
-        v = np.asarray(shape.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
-        if len(v):
-            grow(v.min(axis=0), v.max(axis=0))
-    return (lo, hi) if np.all(lo <= hi) else None
-
-
-def scene_diagonal(scene) -> float:
-    """The bounding-box diagonal of every shape of ``scene`` (:func:`scene_bounds`; 1 where
-    there is none or it is 0): the length every offset of the prepass and the render is
-    relative to."""
-    bounds = scene_bounds(scene)
-    diag = float(np.linalg.norm(bounds[1] - bounds[0])) if bounds is not None else 0.0
-    return diag if np.isfinite(diag) and diag > 0 else 1.0
 
 
 def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int = 0):

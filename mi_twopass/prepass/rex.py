@@ -50,7 +50,7 @@ The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
    keep their photon's depth: under a finite max_depth each bucket holds one irradiance per eye
    depth (:func:`depth_classes`).
 
-Rays spawned here are offset relative to the scene's size (:func:`spawn_ray`); lengths are
+Rays spawned here are offset relative to the scene's size (:func:`mi_twopass.rays.spawn_ray`); lengths are
 relative to :func:`scene_bounds`, the shapes' own bounds (Mitsuba's ``scene.bbox()`` misses
 rectangles it merged into one mesh). Scenes with participating media are refused
 (:func:`check_no_media`).
@@ -75,6 +75,8 @@ import numpy as np
 
 from .. import units
 from ..progress import progress
+from ..rays import spawn_ray
+from ..scene.bounds import scene_bounds
 from ..scene.lambertian import is_lambertian
 
 #: child index of a leaf
@@ -165,7 +167,7 @@ class RexTables:
     def __init__(self, scene):
         shapes = list(scene.shapes())
         self.bounds = scene_bounds(scene)
-        #: the length ray offsets are relative to (:func:`spawn_ray`)
+        #: the length ray offsets are relative to (:func:`mi_twopass.rays.spawn_ray`)
         self.scale = float(self.bounds.radius)
         ids = (np.asarray(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
                if shapes else np.zeros(0, np.int64))
@@ -469,23 +471,13 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
 # ---------------------------------------------------------------------------------------------
 # Light pass (§3.3.1, §4.1): emitters, light quadtree, pilot rays, photons
 # ---------------------------------------------------------------------------------------------
-def spawn_ray(si, d, scale):
-    """``si.spawn_ray(d)`` with an offset relative to the scene's size: Mitsuba offsets the
-    origin by (1 m + max|p|)·RayEpsilon along the normal, 89 µm at least, which is most of a
-    scene modelled in tenths of a millimetre; here the 1 m is ``scale`` (the scene's bounding
-    radius), the same offset for a unit-sized scene."""
-    mag = (scale + dr.max(dr.abs(si.p))) * mi.math.RayEpsilon
-    mag = dr.mulsign(mag, dr.dot(si.n, d))
-    return mi.Ray3f(dr.fma(mag, si.n, si.p), d, si.time, si.wavelengths)
-
-
 def emitter_rays(scene, bounds, em, s2, s3, active=True):
     """Photon rays ``(ray, weight)`` leaving the emitters ``em`` (indices into
     ``scene.emitters()``) from the primary samples ``s2``, ``s3``, as Mitsuba's ``sample_ray``
     samples them, built here where Mitsuba's would be wrong:
 
     * surface (area) emitters: a point by ``sample_position`` (``s2``), a cosine-weighted
-      direction (``s3``), weight Le·π/pdf, the origin offset by :func:`spawn_ray` (Mitsuba's
+      direction (``s3``), weight Le·π/pdf, the origin offset by :func:`mi_twopass.rays.spawn_ray` (Mitsuba's
       absolute offset starts photons in the middle of a sub-millimetre scene);
     * infinite emitters (constant, envmap, sunsky, directional, ...): a direction by
       ``sample_direction`` (``s2``, weight L/pdf) and a point of the disk of radius R facing it
@@ -1268,56 +1260,6 @@ class RexPrepass:
     @property
     def nbytes(self) -> int:
         return int(self.tables.nbytes + self.rexes.nbytes + self.cap.size)
-
-
-@dataclass(frozen=True)
-class SceneBounds:
-    """The axis-aligned bounds of a scene's geometry (every length of the prepass is relative to
-    them) and its bounding sphere (where photons of infinite emitters start)."""
-
-    lo: tuple
-    hi: tuple
-
-    @property
-    def center(self) -> np.ndarray:
-        return 0.5 * (np.asarray(self.lo) + np.asarray(self.hi))
-
-    @property
-    def diagonal(self) -> float:
-        d = float(np.linalg.norm(np.asarray(self.hi) - np.asarray(self.lo)))
-        return d if d > 0 and math.isfinite(d) else 1.0
-
-    @property
-    def radius(self) -> float:
-        """Bounding-sphere radius, a hair larger than half the diagonal (rays start outside)."""
-        return 0.5 * self.diagonal * (1.0 + 1e-3)
-
-
-def scene_bounds(scene) -> SceneBounds:
-    """Bounds of every shape, meshes from their vertices: ``scene.bbox()`` cannot be trusted
-    (Mitsuba 3.9 leaves the rectangles it merges into one mesh out of the merged mesh's bbox,
-    so the bbox of a room of rectangles can be empty or that of a torus inside it)."""
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for shape in scene.shapes():
-        if shape.is_mesh() and shape.vertex_count() > 0:
-            V = np.asarray(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
-            b_lo, b_hi = V.min(axis=0), V.max(axis=0)
-        else:
-            bbox = shape.bbox()
-            b_lo = np.asarray(bbox.min, np.float64).ravel()[:3]
-            b_hi = np.asarray(bbox.max, np.float64).ravel()[:3]
-        ok = np.isfinite(b_lo).all() and np.isfinite(b_hi).all() and (b_hi >= b_lo).all()
-        if ok:
-            lo, hi = np.minimum(lo, b_lo), np.maximum(hi, b_hi)
-    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
-        lo, hi = np.full(3, -0.5), np.full(3, 0.5)
-    return SceneBounds(tuple(lo), tuple(hi))
-
-
-def scene_diagonal(scene) -> float:
-    """The diagonal of :func:`scene_bounds` (1 for an empty scene)."""
-    return scene_bounds(scene).diagonal
 
 
 def warn_short_bbox(scene, bounds):
