@@ -73,7 +73,8 @@ def build_parser():
     _add_scene_args(k)
     k.add_argument("--integrators", default=None,
                    help="comma-separated integrator specs NAME[:key=value...] (default: "
-                        "radiosity_gather,spike_gather,rex,radiance_cache)")
+                        "path,radiosity_gather,spike_gather,rex,radiance_cache; path shows "
+                        "the noise at this spp)")
     k.add_argument("--spp", type=int, default=None, help="samples per pixel (default 64)")
     k.add_argument("--res", type=int, default=None, metavar="PX",
                    help="the film's longer side in pixels, aspect ratio kept (for scenes "

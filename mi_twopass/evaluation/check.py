@@ -11,8 +11,10 @@ correct integrator keeps small whatever its noise pattern:
   is left is mostly bias in regions (a dark corner, a missing caustic).
 
 A row is marked "OUT" when |ratio − 1| > 1 % or block relMSE > 3e-3 (:data:`RATIO_TOLERANCE`,
-:data:`BLOCK_RELMSE_MAX`). Both include the noise of the render and of the reference: raise
-``spp`` / ``ref_spp`` before reading an OUT as a bias. An integrator that refuses the scene
+:data:`BLOCK_RELMSE_MAX`). Both include the noise of the render and of the reference: the
+default rows start with ``path`` itself at the same spp, which shows that noise (on a scene
+with fireflies ``path`` is OUT too); raise ``spp`` / ``ref_spp`` before reading an OUT as a
+bias. An integrator that refuses the scene
 (``ValueError`` / ``NotImplementedError`` from its prepass) is reported as refused, with its
 message. The result is a report: nothing here raises for a row that is out of bounds.
 """
@@ -33,8 +35,10 @@ from .harness import make_integrator
 from .metrics import RELMSE_EPS
 from .reference import reference_image
 
-#: what ``check`` runs when no integrators are named
-DEFAULT_INTEGRATORS = ("radiosity_gather", "spike_gather", "rex", "radiance_cache")
+#: what ``check`` runs when no integrators are named: ``path`` first, at the same spp, the
+#: noise an unbiased estimator leaves in both numbers (an integrator's row OUT where ``path``'s
+#: is OUT too says the bounds are noise-limited at that spp, not that the integrator is biased)
+DEFAULT_INTEGRATORS = ("path", "radiosity_gather", "spike_gather", "rex", "radiance_cache")
 DEFAULT_SPP = 64
 DEFAULT_REF_SPP = 1024
 #: block side in pixels of the block relMSE
