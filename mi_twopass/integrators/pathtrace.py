@@ -11,7 +11,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..rays import spawn_ray_to
+from ..rays import spawn_ray, spawn_ray_to
 
 
 def path_start(ray):
@@ -69,6 +69,29 @@ def russian_roulette(beta, eta, rr_active, u):
     return beta, ~rr_active | (u < q)
 
 
+def bsdf_continue(bsdf, ctx, si, sampler, active, scale, beta, eta, n_nondelta):
+    """The path's next segment, sampled from the BSDF at ``si`` (Mitsuba's ``path`` step, the
+    gather loops' implicit ray), and the path state after it: ``(ray, β·f·cos/p, η·η_bs,
+    non-delta vertices (+1 where ``active`` sampled a non-delta lobe), prev_si, prev_bsdf_pdf,
+    prev_bsdf_delta, bs)``, in :func:`path_start`'s order. The ray leaves with a scene-relative
+    offset (:func:`mi_twopass.rays.spawn_ray`); ``prev_si`` is the detached interaction that
+    the next vertex's MIS weight refers to."""
+    bs, weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
+    is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    ray = spawn_ray(si, si.to_world(bs.wo), scale)
+    n_nondelta = n_nondelta + dr.select(active & ~is_delta, 1, 0)
+    return (ray, beta * weight, eta * bs.eta, n_nondelta, dr.detach(si, True), bs.pdf, is_delta,
+            bs)
+
+
+def roulette_step(beta, eta, depth, rr_depth, u, active, bs):
+    """Russian roulette from ``rr_depth`` on (:func:`russian_roulette`), then which lanes go on:
+    ``(beta, active)``, ended where roulette stopped the path, its throughput is 0 or the BSDF
+    sample failed."""
+    beta, survive = russian_roulette(beta, eta, depth >= rr_depth, u)
+    return beta, active & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
+
+
 #: delta bounces followed before the first non-delta vertex
 MAX_DELTA_DEPTH = 64
 
@@ -109,4 +132,4 @@ def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
 
 
 __all__ = ["first_nondelta_hit", "path_start", "mis_weight", "emission_mis", "emitter_sample_mis",
-           "by_component", "russian_roulette"]
+           "by_component", "russian_roulette", "bsdf_continue", "roulette_step"]

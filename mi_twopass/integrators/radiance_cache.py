@@ -20,9 +20,8 @@ from ..scene.bounds import scene_bounds, scene_diagonal
 from ..scene.lambertian import LambertianShapes
 from ..scene.patches import build_patches
 from .base import TwoPassIntegrator, read_bool, read_choice, read_float, read_int
-from ..rays import spawn_ray
-from .pathtrace import (MAX_DELTA_DEPTH, by_component, emission_mis, emitter_sample_mis,
-                        first_nondelta_hit, path_start, russian_roulette)
+from .pathtrace import (MAX_DELTA_DEPTH, bsdf_continue, by_component, emission_mis,
+                        emitter_sample_mis, first_nondelta_hit, path_start, roulette_step)
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
 
@@ -497,23 +496,15 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 visits += v
 
             # BSDF sampling.
-            bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(),
-                                          active_next)
-            is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-            n_nondelta += dr.select(active_next & ~is_delta, 1, 0)
-            ray = spawn_ray(si, si.to_world(bs.wo), scale)
-            beta *= bsdf_weight
-            eta *= bs.eta
-            prev_si = dr.detach(si, True)
-            prev_bsdf_pdf = bs.pdf
-            prev_bsdf_delta = is_delta
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
+                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
             camera_chain &= ~smooth
             after_cache = read
             depth[si.is_valid()] += 1
 
             # Russian roulette (as Mitsuba's path), from rr_depth on.
-            beta, survive = russian_roulette(beta, eta, depth >= self.rr_depth, sampler.next_1d())
-            active = active_next & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
+            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
+                                         active_next, bs)
 
         self.count("implicit_rays", n_implicit)
         self.count("explicit_rays", n_explicit)

@@ -12,13 +12,13 @@ import mitsuba as mi
 import numpy as np
 
 from ..prepass.radiosity import receiving_elements, solve_radiosity
-from ..rays import spawn_ray, spawn_ray_to
+from ..rays import spawn_ray_to
 from ..scene.bounds import ray_scale
 from ..scene.patches import build_patches
 from ..scenefile import SceneFileError, load_scene
 from .base import FarGatherIntegrator, read_choice
-from .pathtrace import (by_component, emission_mis, emitter_sample_mis, first_nondelta_hit,
-                        path_start, russian_roulette)
+from .pathtrace import (bsdf_continue, by_component, emission_mis, emitter_sample_mis,
+                        first_nondelta_hit, path_start, roulette_step)
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 
@@ -217,7 +217,6 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
     @dr.syntax
     def sample_gather(self, scene, sampler, ray, active):
         """The GSII estimator of the class docstring, one path per lane."""
-        sol = self.structure
         r_thresh = mi.Float(self.r_thresh(scene))
         scale = dr.opaque(mi.Float, ray_scale(scene))  # ray offsets (mi_twopass.rays)
         max_depth = self.depth_bound
@@ -265,20 +264,13 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
                 n_explicit += dr.select(vl_ray, 1, 0)
 
             # Implicit gather ray, sampled from the BSDF.
-            bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active_next)
-            is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-            n_nondelta += dr.select(active_next & ~is_delta, 1, 0)
-            ray = spawn_ray(si, si.to_world(bs.wo), scale)
-            beta *= bsdf_weight
-            eta *= bs.eta
-            prev_si = dr.detach(si, True)
-            prev_bsdf_pdf = bs.pdf
-            prev_bsdf_delta = is_delta
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
+                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
             depth[si.is_valid()] += 1
 
             # Russian roulette (as Mitsuba's path), from rr_depth on.
-            beta, survive = russian_roulette(beta, eta, depth >= self.rr_depth, sampler.next_1d())
-            active = active_next & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
+            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
+                                         active_next, bs)
 
         self.count("implicit_rays", n_implicit)
         self.count("explicit_rays", n_explicit)

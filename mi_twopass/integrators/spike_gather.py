@@ -9,15 +9,15 @@ import drjit as dr
 import mitsuba as mi
 
 from ..prepass.radiosity import receiving_elements, solve_radiosity
-from ..rays import spawn_ray, spawn_ray_to
+from ..rays import spawn_ray_to
 from ..scene.bounds import ray_scale
 from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
 from ..progress import progress as progress_bar
 from ..scene.patches import build_patches
 from .base import (FarGatherIntegrator, needs_memory, read_bool, read_choice, read_float,
                    read_int)
-from .pathtrace import (by_component, first_nondelta_hit, mis_weight, path_start,
-                        russian_roulette)
+from .pathtrace import (bsdf_continue, by_component, first_nondelta_hit, mis_weight,
+                        path_start, roulette_step)
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
 
@@ -476,16 +476,8 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             L += by_component(Ld, (is_em | use_fb) & first_vertex, want_direct, want_indirect)
 
             # -- Implicit gather ray, sampled from the BSDF.
-            bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(),
-                                          active_next)
-            is_delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-            n_nondelta += dr.select(active_next & ~is_delta, 1, 0)
-            ray = spawn_ray(si, si.to_world(bs.wo), scale)
-            beta *= bsdf_weight
-            eta *= bs.eta
-            prev_si = dr.detach(si, True)
-            prev_bsdf_pdf = bs.pdf
-            prev_bsdf_delta = is_delta
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
+                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
             prev_list_a = dr.select(has_list, lid_a, INVALID)
             prev_list_b = dr.select(has_list, lid_b, INVALID)
             prev_scale_a = dr.select(has_list, scale_a, 0.0)
@@ -496,8 +488,8 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             depth[si.is_valid()] += 1
 
             # Russian roulette (as Mitsuba's path), from rr_depth on.
-            beta, survive = russian_roulette(beta, eta, depth >= self.rr_depth, sampler.next_1d())
-            active = active_next & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
+            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
+                                         active_next, bs)
 
         # the counters are reductions that evaluate the loop: schedule L with them, so that one
         # kernel computes everything instead of the loop running twice
