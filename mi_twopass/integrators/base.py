@@ -22,6 +22,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..prepass.radiosity import RadiositySettings
+
 #: keys every integrator reports after a render
 STAT_KEYS = (
     "viewing_rays",
@@ -448,8 +450,7 @@ class FarGatherIntegrator(TwoPassIntegrator):
         self.r_thresh_rel = read_float(props, "r_thresh_rel", 0.1, minimum=0.0)
         self.r_thresh_abs = read_float(props, "r_thresh", 0.0, minimum=0.0) \
             if "r_thresh" in props else None
-        self.max_patches, self.particles_per_patch, self.elements_per_patch = \
-            read_radiosity_budget(props, *self.RADIOSITY_DEFAULTS)
+        self.radiosity = read_radiosity_budget(props, *self.RADIOSITY_DEFAULTS)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
 
     @property
@@ -476,9 +477,9 @@ class FarGatherIntegrator(TwoPassIntegrator):
 
 
 def read_radiosity_budget(props, max_patches=1024, particles_per_patch=256,
-                          elements_per_patch=16) -> tuple:
+                          elements_per_patch=16) -> RadiositySettings:
     """Read and bound ``max_patches``, ``particles_per_patch`` and ``elements_per_patch`` (the
-    radiosity prepass's budget, shared by every integrator that runs it); returns the three."""
+    radiosity prepass's budget, shared by every integrator that runs it), once, in one place."""
     patches = read_int(props, "max_patches", max_patches, minimum=1, maximum=MAX_PATCHES,
                        why=needs_memory(BYTES_PER_PATCH_BUILD, "building the patches"))
     particles = read_int(
@@ -491,4 +492,5 @@ def read_radiosity_budget(props, max_patches=1024, particles_per_patch=256,
                         why=lambda v: f"{v} × max_patches={patches} receiving elements; "
                                       + needs_memory(BYTES_PER_ELEMENT_BUILD,
                                                      "building them")(v * patches))
-    return patches, particles, elements
+    return RadiositySettings(max_patches=patches, particles_per_patch=particles,
+                             elements_per_patch=elements)

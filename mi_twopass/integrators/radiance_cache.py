@@ -15,11 +15,12 @@ import mitsuba as mi
 from ..prepass.near_field import build_near_field, buried_triangles, split_near_triangles
 from ..prepass.radiance_cache import (build_radiance_cache, cached_surface,
                                       collect_shading_points, default_alpha)
-from ..prepass.radiosity import receiving_elements, solve_radiosity
+from ..prepass.radiosity import build as build_radiosity
 from ..scene.bounds import scene_bounds, scene_diagonal
 from ..scene.lambertian import LambertianShapes
 from ..scene.patches import build_patches
-from .base import TwoPassIntegrator, read_bool, read_choice, read_float, read_int
+from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
+                   read_radiosity_budget)
 from .pathtrace import (MAX_DELTA_DEPTH, bsdf_continue, by_component, emission_mis,
                         emitter_sample_mis, first_nondelta_hit, path_start, roulette_step)
 
@@ -235,7 +236,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          triangles (default: 2048).
      * - particles_per_patch
        - |int|
-       - Particles the radiosity solver shoots per patch (default: 256).
+       - Particles the radiosity solver shoots per patch (default: 256) At least 65536 in all
+         (``prepass.radiosity.MIN_PARTICLES``), however few the patches.
      * - elements_per_patch
        - |int|
        - Receiving elements per radiosity patch (as in ``radiosity_gather``); the SH gather
@@ -297,10 +299,9 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.fake_gi = read_bool(props, "fake_gi", False)
         self.ignore_media = read_bool(props, "ignore_media", False)
         self.ambient = read_float(props, "ambient", 0.1, minimum=0.0)
-        self.max_patches = read_int(props, "max_patches", 2048, minimum=1)
-        self.particles_per_patch = read_int(props, "particles_per_patch", 256, minimum=1)
+        self.radiosity = read_radiosity_budget(props, max_patches=2048, particles_per_patch=256,
+                                               elements_per_patch=1)
         self.max_points = read_int(props, "max_points", 4096, minimum=1)
-        self.elements_per_patch = read_int(props, "elements_per_patch", 1, minimum=1)
         self.max_clusters = read_int(props, "max_clusters", 1024, minimum=1)
         self.rays_per_cluster = read_int(props, "rays_per_cluster", 128, minimum=1)
         self.max_near_triangles = read_int(props, "max_near_triangles", 1 << 17, minimum=1)
@@ -309,8 +310,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.near_far = read_choice(props, "near_far", "direction", ("direction", "mean"))
 
     def settings(self):
-        return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.max_patches,
-                self.particles_per_patch, self.elements_per_patch, self.max_points,
+        return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.radiosity,
+                self.max_points,
                 self.max_clusters, self.rays_per_cluster, self.max_near_triangles, self.cell_rel)
 
     def alpha(self, scene, points=None) -> float:
@@ -349,22 +350,18 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         points = collect_shading_points(scene, sensor, self.max_points, seed) \
             if sensor is not None else None
         alpha = self.alpha(scene, None if points is None else points[0])
-        patches = build_patches(scene, max_patches=self.max_patches, seed=seed)
+        rad = None if self.fake_gi else build_radiosity(scene, self.radiosity, seed)
+        patches = rad.patches if rad is not None else \
+            build_patches(scene, max_patches=self.radiosity.max_patches, seed=seed)
         lambertian = LambertianShapes(scene)
         shape_diffuse = lambertian.per_shape
         # a near triangle sends R_t only from a cached patch (as cached_surface at render time)
         patch_diffuse = shape_diffuse[np.asarray(patches.shape_index, dtype=np.int64)] \
             & np.asarray(patches.is_diffuse, dtype=bool)
-        elements = None
-        if self.fake_gi:
-            solution = None
-            tri_B = np.zeros((len(patches.tri_patch), 3))
-        else:
-            elements = receiving_elements(scene, self.max_patches, self.elements_per_patch, seed)
-            solution = solve_radiosity(scene, patches,
-                                       n_particles=max(1, self.particles_per_patch * patches.count),
-                                       seed=seed, elements=elements)
-            tri_B = np.asarray(solution.B_reflected)[np.asarray(patches.tri_patch)]
+        solution = rad.solution if rad is not None else None
+        elements = rad.elements if rad is not None else None
+        tri_B = np.asarray(solution.B_reflected)[np.asarray(patches.tri_patch)] \
+            if solution is not None else np.zeros((len(patches.tri_patch), 3))
         diffuse = patch_diffuse[np.asarray(patches.tri_patch)] if len(patch_diffuse) else \
             np.zeros(0, dtype=bool)
         tri_B = np.where(diffuse[:, None], tri_B, 0.0)

@@ -4,27 +4,22 @@ Zimmerman & Shirley 1995 (docs/design.md "Papers"), §2.3 (implicit gather) and 
 """
 from __future__ import annotations
 
-import math
 import os
+from dataclasses import replace
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
-from ..prepass.radiosity import receiving_elements, solve_radiosity
+from ..prepass.radiosity import RadiositySettings
+from ..prepass.radiosity import build as build_radiosity
 from ..rays import spawn_ray_to
 from ..scene.bounds import ray_scale
-from ..scene.patches import build_patches
-from ..scenefile import SceneFileError, load_scene
+from ..scenefile import SceneFileError
 from .base import FarGatherIntegrator, read_choice
 from .pathtrace import (bsdf_continue, by_component, emission_mis, emitter_sample_mis,
                         first_nondelta_hit, path_start, roulette_step)
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
-
-#: fewest particles the prepass shoots, however few patches (per-patch noise ~ 1/sqrt(n/N))
-MIN_PARTICLES = 1 << 16
-
 
 
 class RadiosityGatherIntegrator(FarGatherIntegrator):
@@ -72,7 +67,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
          the error at 1024 spp by < 10 % and cost 4× the prepass time).
      * - particles_per_patch
        - |int|
-       - Particles the stochastic radiosity solver shoots per patch (default: 256).
+       - Particles the stochastic radiosity solver shoots per patch (default: 256) At least 65536 in all
+         (``prepass.radiosity.MIN_PARTICLES``), however few the patches.
      * - elements_per_patch
        - |int|
        - Receiving elements per patch (Cohen et al. 1986 substructuring; default: 16, i.e.
@@ -109,57 +105,24 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
             raise SceneFileError(f"prepass_scene: file not found: {self.prepass_scene_path}")
 
     def settings(self):
-        return (self.max_patches, self.particles_per_patch, self.elements_per_patch,
-                self.vl_threshold_used, self.prepass_scene_path)
+        return (self.radiosity_settings,)
+
+    @property
+    def radiosity_settings(self) -> RadiositySettings:
+        """The budget read at load, with GSII's virtual-luminaire threshold (∞ where the far
+        gather is off) and the simplified prepass scene."""
+        return replace(self.radiosity, vl_threshold=self.vl_threshold_used,
+                       prepass_scene=self.prepass_scene_path)
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
-        """GSII steps 1–2: patches (and receiving elements) of the (simplified) scene and their
-        radiosity. The particle count follows the patches, not the elements."""
-        gather_scene = load_scene(self.prepass_scene_path) if self.prepass_scene_path else scene
-        patches = build_patches(gather_scene, max_patches=self.max_patches, seed=seed)
-        elements = receiving_elements(gather_scene, self.max_patches, self.elements_per_patch,
-                                      seed)
-        n_particles = max(MIN_PARTICLES, self.particles_per_patch * patches.count)
-        solution = solve_radiosity(gather_scene, patches, n_particles=n_particles, seed=seed,
-                                   elements=elements)
-        self.gather_scene = gather_scene
-        self._setup_virtual_luminaires(solution)
-        return solution
+        """GSII steps 1–2 (:func:`mi_twopass.prepass.radiosity.build`)."""
+        return build_radiosity(scene, self.radiosity_settings, seed)
 
-    def _setup_virtual_luminaires(self, solution):
-        """Reclassify bright reflectors (GSII): a power-proportional table over them."""
-        patches = solution.patches
-        Br = np.asarray(solution.B_reflected).mean(axis=1)
-        power = Br * np.asarray(patches.area)
-        limit = self.vl_threshold_used * Br.max() if Br.size and self.far_gather_exact \
-            else math.inf
-        chosen = np.nonzero((Br >= limit) & (power > 0) & (Br > 0)
-                            & patches.is_diffuse)[0].astype(np.uint32)
-        self.vl_count = int(chosen.size)
-        is_vl = np.zeros(patches.count + 1, dtype=bool)
-        is_vl[chosen] = True
-        self.vl_mask = mi.Bool(is_vl)
-        if chosen.size:
-            self.vl_ids = mi.UInt32(chosen)
-            self.vl_distr = mi.DiscreteDistribution(mi.Float(power[chosen].astype(np.float32)))
-            pmf = np.zeros(patches.count + 1, dtype=np.float32)
-            pmf[chosen] = power[chosen] / power[chosen].sum()
-            self.vl_pmf = mi.Float(pmf)
-        else:
-            self.vl_ids = self.vl_distr = self.vl_pmf = None
-
-    def prepass_stats(self, solution):
-        probe = solution.patches.probe_rays + (solution.elements.probe_rays
-                                               if solution.elements is not None else 0)
-        return {"prepass_rays": int(solution.rays) + int(probe),
-                "patches": int(solution.patches.count),
-                "elements": int(solution.elements.count) if solution.elements is not None else 0,
-                "virtual_luminaires": self.vl_count, "cache_bytes": int(solution.nbytes),
-                # patches / elements cut by geometry: traced on, not read (light-leak guard)
-                "split_patches": int(np.sum(solution.patches.is_split)),
-                "split_elements": int(np.sum(solution.elements.is_split))
-                if solution.elements is not None else 0}
+    def prepass_stats(self, pre):
+        st = pre.stats
+        return {**st, "prepass_rays": st["radiosity_rays"] + st["probe_rays"],
+                "cache_bytes": pre.nbytes}
 
     # -- gather -----------------------------------------------------------------------------
     def far_reflected(self, ray, si, gather_ray, r_thresh):
@@ -170,25 +133,26 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         its patches. Virtual luminaires give 0: they are sampled explicitly. The value is the
         element's (``elements_per_patch``; the patch's without elements): see
         :func:`mi_twopass.prepass.radiosity.solve_radiosity` for why a patch mean is biased."""
-        sol = self.structure
+        pre = self.structure
+        sol = pre.solution
         far = gather_ray & si.is_valid() & (si.t >= r_thresh)
         far &= sol.cached_at(si, far)
         pid = sol.patches.lookup(si, far)
-        if self.prepass_scene_path:
-            si_massing = self.gather_scene.ray_intersect(ray, far)
-            pid = sol.patches.lookup(si_massing, far & si_massing.is_valid())
-        counted = far & ~dr.gather(mi.Bool, self.vl_mask, pid, far)
+        if pre.simplified:
+            si = pre.scene.ray_intersect(ray, far)
+            pid = sol.patches.lookup(si, far & si.is_valid())
+        counted = far & ~pre.virtual.contains(pid, far)
         if sol.elements is None:
             return sol.patch_reflected_radiance(pid, counted), far
-        return sol.reflected_radiance(si_massing if self.prepass_scene_path else si, counted), far
+        return sol.reflected_radiance(si, counted), far
 
     def sample_virtual(self, scene, sampler, si, bsdf, ctx, r_thresh, active, scale=1.0):
         """One explicit sample of a virtual luminaire: f · (B_r/π) · G / pdf, for |y−x| ≥ r_thresh."""
-        if self.vl_distr is None:
+        vl = self.structure.virtual
+        if vl.count == 0:
             return mi.Spectrum(0.0), mi.Bool(False)
-        sol = self.structure
-        idx, _, = self.vl_distr.sample_reuse(sampler.next_1d(active), active)
-        pid = dr.gather(mi.UInt32, self.vl_ids, idx, active)
+        sol = self.structure.solution
+        pid = vl.sample(sampler.next_1d(active), active)
         p, n, pdf_area = sol.patches.sample_points(pid, sampler.next_2d(active), active)
         d = p - si.p
         dist2 = dr.squared_norm(d)
@@ -203,7 +167,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         visible = ok & ~scene.ray_test(shadow, ok)
         wo = si.to_local(wo_world)
         f = bsdf.eval(ctx, si, wo, visible)
-        pmf = dr.gather(mi.Float, self.vl_pmf, pid, visible)
+        pmf = vl.pmf(pid, visible)
         Lr = sol.patch_reflected_radiance(pid, visible)
         G = cos_y / dr.maximum(dist2, 1e-30)
         contrib = f * Lr * G / dr.maximum(pmf * pdf_area, 1e-30)
@@ -278,7 +242,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
 
     def sample_debug(self, scene, sampler, ray, active):
         """Debug views at the first non-delta hit (delta surfaces followed as a path)."""
-        sol = self.structure
+        sol = self.structure.solution
         si, _, beta, _, stop = first_nondelta_hit(scene, sampler, ray, active)
         pid = sol.patches.lookup(si, stop)
         if self.debug == "radiosity":
@@ -288,7 +252,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
             value = mi.Spectrum(mi.Float(h & 255), mi.Float((h >> 8) & 255),
                                 mi.Float((h >> 16) & 255)) / 255.0
         else:  # virtual luminaires in white over a dim radiosity view
-            is_vl = dr.gather(mi.Bool, self.vl_mask, pid, stop)
+            is_vl = self.structure.virtual.contains(pid, stop)
             value = dr.select(is_vl, mi.Spectrum(1.0), 0.25 * sol.radiosity(si, stop) / dr.pi)
         return dr.select(stop, beta * value, 0.0), mi.Bool(True), []
 

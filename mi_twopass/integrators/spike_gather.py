@@ -3,17 +3,14 @@ per gather (Zimmerman & Shirley 1995, docs/design.md "Papers", §2.6, §3 and §
 """
 from __future__ import annotations
 
-import time
-
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.radiosity import receiving_elements, solve_radiosity
+from ..prepass.spike_grid import INVALID, SpikeSettings
+from ..prepass.spike_grid import build as build_spike
+from ..progress import progress as progress_bar
 from ..rays import spawn_ray_to
 from ..scene.bounds import ray_scale
-from ..prepass.spike_grid import INVALID, SpikeSettings, build_spike_prepass
-from ..progress import progress as progress_bar
-from ..scene.patches import build_patches
 from .base import (FarGatherIntegrator, needs_memory, read_bool, read_choice, read_float,
                    read_int)
 from .pathtrace import (bsdf_continue, by_component, first_nondelta_hit, mis_weight,
@@ -203,6 +200,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
          ``radiosity_gather``'s: here the radiosity only feeds far gather rays and the
          reclassified sources; on ``many_lights.xml`` 64² the relMSE at 512 spp was the same
          as with 256, 9.5e-3, and the prepass 0.4 s shorter; ``tools/spike_truncation.py``).
+         At least 65536 in all (``prepass.radiosity.MIN_PARTICLES``).
      * - elements_per_patch
        - |int|
        - Receiving elements per radiosity patch, read by far gather rays (as in
@@ -263,8 +261,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
     def settings(self):
         return (self.grid_res, self.e_high_rel, self.e_low_rel, self.e_high, self.e_low,
                 self.influence_rel, self.influence, self.visibility_max_rays, self.camera_res,
-                self.cell_points, self.max_patches, self.particles_per_patch,
-                self.elements_per_patch, self.vl_threshold_used,
+                self.cell_points, self.radiosity, self.vl_threshold_used,
                 self.gather_cells, self.r_thresh_rel, self.r_thresh_abs)
 
     def spike_settings(self, scene) -> SpikeSettings:
@@ -272,31 +269,17 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
                              cell_points=self.cell_points, influence=self.influence,
                              influence_rel=self.influence_rel,
                              visibility_max_rays=self.visibility_max_rays,
-                             gather_reach=self.r_thresh(scene) if self.gather_cells else 0.0)
+                             gather_reach=self.r_thresh(scene) if self.gather_cells else 0.0,
+                             vl_threshold=self.vl_threshold_used, e_high_rel=self.e_high_rel,
+                             e_low_rel=self.e_low_rel, E_high=self.e_high, E_low=self.e_low)
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
-        """GSII steps 1–2 (patches, radiosity), then §3.3 step 3: sources and spike lists."""
-        t0 = time.perf_counter()
-        patches = build_patches(scene, max_patches=self.max_patches, seed=seed)
-        elements = receiving_elements(scene, self.max_patches, self.elements_per_patch, seed)
-        n_particles = max(1, self.particles_per_patch * patches.count)
-        solution = solve_radiosity(scene, patches, n_particles=n_particles, seed=seed,
-                                   elements=elements)
-        t_rad = time.perf_counter() - t0
-        rounds = self.visibility_max_rays // 10
-        with progress_bar(total=rounds, desc="spike lists", unit="round") as bar:
-            pre = build_spike_prepass(scene, self.spike_settings(scene), solution=solution,
-                                      vl_threshold=self.vl_threshold_used,
-                                      e_high_rel=self.e_high_rel, e_low_rel=self.e_low_rel,
-                                      E_high=self.e_high, E_low=self.e_low, seed=seed,
-                                      progress=bar)
-        probe_rays = patches.probe_rays + (elements.probe_rays if elements is not None else 0)
-        pre.stats.update(radiosity_seconds=t_rad, radiosity_rays=int(solution.rays),
-                         patches=int(patches.count), probe_rays=int(probe_rays),
-                         elements=int(elements.count) if elements is not None else 0,
-                         spike_seconds=time.perf_counter() - t0 - t_rad)
-        return pre
+        """GSII steps 1–2 (patches, radiosity), then §3.3 step 3: sources and spike lists
+        (:func:`mi_twopass.prepass.spike_grid.build`)."""
+        with progress_bar(total=self.visibility_max_rays // 10, desc="spike lists",
+                          unit="round") as bar:
+            return build_spike(scene, self.spike_settings(scene), self.radiosity, seed, bar)
 
     def prepass_stats(self, pre):
         st = dict(pre.stats)

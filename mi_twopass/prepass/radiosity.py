@@ -60,6 +60,7 @@ import numpy as np
 from .. import units
 from ..progress import progress as progress_bar
 from ..scene.patches import Patches, build_patches
+from ..scenefile import load_scene
 
 #: default cap on surface interactions per particle (see the module docstring for its bias)
 DEFAULT_MAX_BOUNCES = 1024
@@ -406,3 +407,129 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
         E=E, rays=int(rays), seconds=seconds, particles=traced, max_bounces=max_bounces,
         flux_emitted=acc["emitted"], flux_absorbed=acc["absorbed"],
         flux_escaped=acc["escaped"], flux_truncated=acc["truncated"], **extra)
+
+
+# ---------------------------------------------------------------------------------------------
+# The radiosity prepass as one step: patches, receiving elements, the solve, virtual luminaires
+# ---------------------------------------------------------------------------------------------
+#: fewest particles a solve shoots, whatever the patch count (a handful of patches would
+#: otherwise get a noisy solution from a few thousand particles)
+MIN_PARTICLES = 1 << 16
+
+
+@dataclass(frozen=True)
+class RadiositySettings:
+    """What the radiosity prepass reads from an integrator's XML (bounds checked there, by
+    :func:`mi_twopass.integrators.base.read_radiosity_budget`)."""
+
+    max_patches: int = 1024
+    particles_per_patch: int = PARTICLES_PER_PATCH
+    #: receiving elements per patch (1: none)
+    elements_per_patch: int = 16
+    min_particles: int = MIN_PARTICLES
+    #: GSII's reclassification: patches whose reflected radiosity is at least this fraction of
+    #: the largest become virtual luminaires (∞: none)
+    vl_threshold: float = math.inf
+    #: a simplified scene file the prepass runs on instead of the render's (GSII §2.5)
+    prepass_scene: str = ""
+
+
+class VirtualLuminaires:
+    """GSII's reclassified bright reflectors (Zimmerman & Shirley §2.5) as a light sampler: a
+    power-proportional choice among the patches with B_r ≥ ``vl_threshold`` × max B_r
+    (Lambertian, uncut patches only: the cached ones). :meth:`sample` and :meth:`pmf` agree
+    (tests/prepass/test_radiosity.py)."""
+
+    def __init__(self, solution: RadiositySolution, vl_threshold: float):
+        patches = solution.patches
+        Br = np.asarray(solution.B_reflected).mean(axis=1)
+        power = Br * np.asarray(patches.area)
+        limit = vl_threshold * Br.max() if Br.size and math.isfinite(vl_threshold) else math.inf
+        chosen = np.nonzero((Br >= limit) & (power > 0) & (Br > 0)
+                            & patches.is_diffuse)[0].astype(np.uint32)
+        self.count = int(chosen.size)
+        is_vl = np.zeros(patches.count + 1, dtype=bool)
+        is_vl[chosen] = True
+        #: per patch (+1 sentinel): is it a virtual luminaire
+        self.mask = mi.Bool(is_vl)
+        self.ids = self.distr = self.pmf_table = None
+        if chosen.size:
+            self.ids = mi.UInt32(chosen)
+            self.distr = mi.DiscreteDistribution(mi.Float(power[chosen].astype(np.float32)))
+            pmf = np.zeros(patches.count + 1, dtype=np.float32)
+            pmf[chosen] = power[chosen] / power[chosen].sum()
+            self.pmf_table = mi.Float(pmf)
+
+    def sample(self, u, active=True):
+        """A virtual luminaire's patch id, chosen ∝ its power from the uniform ``u``."""
+        idx, _ = self.distr.sample_reuse(u, active)
+        return dr.gather(mi.UInt32, self.ids, idx, active)
+
+    def pmf(self, pid, active=True):
+        """The probability :meth:`sample` picks patch ``pid`` (0 for other patches)."""
+        return dr.gather(mi.Float, self.pmf_table, pid, active)
+
+    def contains(self, pid, active=True):
+        return dr.gather(mi.Bool, self.mask, pid, active)
+
+
+@dataclass
+class RadiosityPrepass:
+    """What :func:`build` makes: the ``scene`` the patches belong to (the render's, or the
+    simplified ``prepass_scene``), the ``solution`` (patches, elements, radiosities) and the
+    ``virtual`` luminaires; ``stats`` and ``nbytes`` for the integrators' tables."""
+
+    scene: object
+    solution: RadiositySolution
+    virtual: VirtualLuminaires
+    seconds: float
+    simplified: bool = False
+
+    @property
+    def patches(self):
+        return self.solution.patches
+
+    @property
+    def elements(self):
+        return self.solution.elements
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.solution.nbytes)
+
+    @property
+    def stats(self) -> dict:
+        sol = self.solution
+        probe = sol.patches.probe_rays + (sol.elements.probe_rays if sol.elements is not None
+                                          else 0)
+        return {"radiosity_rays": int(sol.rays), "probe_rays": int(probe),
+                "radiosity_seconds": self.seconds,
+                "patches": int(sol.patches.count),
+                "elements": int(sol.elements.count) if sol.elements is not None else 0,
+                "virtual_luminaires": self.virtual.count,
+                # patches / elements cut by geometry: traced on, not read (light-leak guard)
+                "split_patches": int(np.sum(sol.patches.is_split)),
+                "split_elements": int(np.sum(sol.elements.is_split))
+                if sol.elements is not None else 0}
+
+
+def build(scene, settings: RadiositySettings, seed: int, progress=None) -> RadiosityPrepass:
+    """The radiosity prepass shared by radiosity_gather, spike_gather and radiance_cache (GSII
+    steps 1–2, Zimmerman & Shirley §2.5 / §3.3 step 2): patches of at most ``max_patches``,
+    receiving elements, max(``min_particles``, ``particles_per_patch`` × patches) particles
+    (the count follows the patches, not the elements), then the virtual luminaires. With
+    ``prepass_scene`` it all runs on that simplified scene. ``progress``: a bool (bars on the
+    solve), as :func:`solve_radiosity`'s."""
+    t0 = time.perf_counter()
+    simplified = bool(settings.prepass_scene)
+    target = load_scene(settings.prepass_scene) if simplified else scene
+    patches = build_patches(target, max_patches=settings.max_patches, seed=seed)
+    elements = receiving_elements(target, settings.max_patches, settings.elements_per_patch,
+                                  seed)
+    n_particles = max(settings.min_particles, settings.particles_per_patch * patches.count)
+    solution = solve_radiosity(target, patches, n_particles=n_particles, seed=seed,
+                               elements=elements,
+                               progress=True if progress is None else bool(progress))
+    virtual = VirtualLuminaires(solution, settings.vl_threshold)
+    return RadiosityPrepass(scene=target, solution=solution, virtual=virtual,
+                            seconds=time.perf_counter() - t0, simplified=simplified)

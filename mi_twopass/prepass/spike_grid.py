@@ -97,11 +97,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
+from .radiosity import RadiositySettings
+from .radiosity import build as build_radiosity
 
 INVALID = 0xFFFFFFFF
 #: source kinds
@@ -876,6 +879,12 @@ class SpikeSettings:
     batch_rays: int = 1 << 21
     point_offset_rel: float = 1e-4  # sample-point offset along the normal, × bbox diagonal
     gather_reach: float = 0.0  # > 0: cells where near gather rays (shorter than this) land too
+    # the sources (build_sources): virtual-luminaire threshold, E_high / E_low relative or absolute
+    vl_threshold: float = 0.5
+    e_high_rel: float = 4.0
+    e_low_rel: float = 0.1
+    E_high: float | None = None
+    E_low: float | None = None
 
     def validate(self):
         if int(self.grid_res) < 1:
@@ -1219,3 +1228,21 @@ __all__ = ["INVALID", "Sources", "SpikeGrid", "SpikeSettings", "SpikePrepass", "
            "build_spike_grid", "build_spike_prepass", "bounce_points", "camera_points",
            "can_light", "candidate_pairs",
            "estimate_visibility", "grid_geometry", "conservative_cos"]
+
+
+def build(scene, settings: SpikeSettings, radiosity: RadiositySettings, seed: int,
+          progress=None) -> SpikePrepass:
+    """The whole spike_gather prepass (Zimmerman & Shirley §3.3 steps 1–3): the shared
+    radiosity prepass (:func:`mi_twopass.prepass.radiosity.build`; its own virtual luminaires
+    off: the spike sources reclassify patches by ``settings.vl_threshold``), then the sources
+    and the spike lists. ``progress``: a tqdm-like bar advanced once per visibility round."""
+    t0 = time.perf_counter()
+    rad = build_radiosity(scene, replace(radiosity, vl_threshold=math.inf), seed)
+    pre = build_spike_prepass(scene, settings, solution=rad.solution,
+                              vl_threshold=settings.vl_threshold,
+                              e_high_rel=settings.e_high_rel, e_low_rel=settings.e_low_rel,
+                              E_high=settings.E_high, E_low=settings.E_low, seed=seed,
+                              progress=progress)
+    rad_stats = {k: v for k, v in rad.stats.items() if k != "virtual_luminaires"}
+    pre.stats.update(rad_stats, spike_seconds=time.perf_counter() - t0 - rad.seconds)
+    return pre

@@ -159,7 +159,7 @@ def test_prepass_scene_is_used(tmp_path):
     a = np.asarray(mi.render(scene, integrator=full, spp=16))
     b = np.asarray(mi.render(scene, integrator=simp, spp=16))
     assert np.all(np.isfinite(b))
-    assert simp.gather_scene is not scene
+    assert simp.structure.scene is not scene and simp.structure.simplified
     # the prepass ran on the massing model: less surface, and far gathers read its patches
     assert simp.structure.patches.area.sum() < 0.9 * full.structure.patches.area.sum()
     assert not np.allclose(a, b)
