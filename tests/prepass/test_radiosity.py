@@ -3,6 +3,7 @@
 Statistical checks compare with standard errors: from the binomial law of the hits where every
 particle carries the same flux, or from the spread of independent runs (different seeds)."""
 import math
+import os
 import time
 
 import numpy as np
@@ -350,3 +351,33 @@ def test_elements_refine_patches_without_changing_them():
     again = solve_radiosity(scene, patches, n_particles=1 << 16, seed=5, progress=False,
                             elements=elements)
     np.testing.assert_array_equal(again.E_elements, sol.E_elements)
+
+
+def test_shared_build_and_virtual_luminaire_sampler_agree_with_their_pmf():
+    """prepass.radiosity.build: one call makes patches, elements, the solve and the virtual
+    luminaires; VirtualLuminaires.sample draws patch i with probability pmf(i) ∝ its power
+    (a chi² test of 2^16 draws), only among the patches whose B_r ≥ vl_threshold × max B_r."""
+    from scipy import stats
+
+    from mi_twopass.prepass.radiosity import RadiositySettings, build
+
+    scenes = os.path.join(os.path.dirname(__file__), "..", "..", "scenes_xml")
+    scene = mi.load_file(os.path.join(scenes, "cornell_box.xml"), res=8)
+    pre = build(scene, RadiositySettings(max_patches=64, particles_per_patch=64,
+                                         elements_per_patch=4, vl_threshold=0.2), seed=3)
+    assert pre.scene is scene and not pre.simplified and pre.elements is not None
+    assert pre.stats["patches"] == pre.patches.count and pre.stats["radiosity_rays"] > 0
+    vl = pre.virtual
+    Br = np.asarray(pre.solution.B_reflected).mean(axis=1)
+    expected = np.nonzero((Br >= 0.2 * Br.max()) & (Br > 0) & pre.patches.is_diffuse)[0]
+    assert vl.count == len(expected) > 1
+    n = 1 << 16
+    pid = np.asarray(vl.sample(mi.Float(np.random.default_rng(0).random(n).astype(np.float32))))
+    assert set(np.unique(pid)) <= set(expected.tolist())
+    pmf = np.asarray(vl.pmf(mi.UInt32(np.arange(pre.patches.count, dtype=np.uint32))))
+    others = np.setdiff1d(np.arange(len(pmf)), expected)
+    assert abs(pmf.sum() - 1) < 1e-5 and np.all(pmf[others] == 0)
+    counts = np.bincount(pid, minlength=pre.patches.count)[expected]
+    _, p = stats.chisquare(counts, pmf[expected] * n / pmf[expected].sum())
+    assert p > 1e-3
+    assert np.all(np.asarray(vl.contains(mi.UInt32(expected.astype(np.uint32)))))
