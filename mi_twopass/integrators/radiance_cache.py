@@ -5,32 +5,17 @@ Arikan, Forsyth & O'Brien 2005, "Radiance Caching and Local Geometry Correction"
 """
 from __future__ import annotations
 
-import warnings
-
-import numpy as np
-
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.near_field import build_near_field, buried_triangles, split_near_triangles
-from ..prepass.radiance_cache import (build_radiance_cache, cached_surface,
-                                      collect_shading_points, default_alpha)
-from ..prepass.radiosity import build as build_radiosity
-from ..scene.bounds import scene_bounds, scene_diagonal
-from ..scene.lambertian import LambertianShapes
-from ..scene.patches import build_patches
+from ..prepass.radiance_cache import ALPHA_REL, CacheSettings, cached_surface
+from ..prepass.radiance_cache import build as build_cache
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
                    read_radiosity_budget)
 from .pathtrace import (MAX_DELTA_DEPTH, bsdf_continue, by_component, emission_mis,
                         emitter_sample_mis, first_nondelta_hit, path_start, roulette_step)
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
-
-#: default alpha as a fraction of the bounding-box diagonal of the camera's shading points.
-#: window_interior 64² (diagonal 7.7 m), relMSE at 256 spp against path: 0.0037 at 0.02 and
-#: 0.03, 0.0052 at 0.05, 0.0075 at 0.1 (darker as alpha grows: the visibility assumption of
-#: B_C, §6); 0.03 needs about half the SH samples of 0.02.
-ALPHA_REL = 0.03
 
 #: accepted range of ``lambda``: 0 (far field alone) … 1 (the physical correction, eq. 2) … this
 #: (§8.1, Fig. 12: λ > 1 exaggerates B_C for fake GI); beyond it B_C swamps the image
@@ -40,72 +25,6 @@ LAMBDA_MAX = 10.0
 #: the coarse radiosity solution, RBF interpolation, the near field's visibility assumption):
 #: measured −1 … −10 % (class docstring, "Bias"); tests/integrators/test_radiance_cache*.py
 BIAS_BOUND = 0.15
-
-
-def check_no_media(scene):
-    """ValueError naming the first participating medium of ``scene`` (on a sensor, an emitter or
-    a shape's inside or outside): radiance_cache transports light between surfaces only."""
-    found = []
-    for sensor in scene.sensors():
-        found.append(("sensor", sensor, sensor.get_medium()))
-    for emitter in scene.emitters():
-        found.append(("emitter", emitter, emitter.get_medium()))
-    for shape in scene.shapes():
-        found.append(("interior of shape", shape, shape.interior_medium()))
-        found.append(("exterior of shape", shape, shape.exterior_medium()))
-    for where, obj, medium in found:
-        if medium is not None:
-            raise ValueError(
-                f"radiance_cache: the scene has a participating medium ({medium.class_name()} "
-                f"'{medium.id()}', {where} '{obj.id()}'); radiance_cache transports light "
-                "between surfaces only and would render it as if it were not there: render the "
-                "scene with 'volpath', or set ignore_media=true to ignore it as 'path' does")
-
-
-def infinite_emitters_unbounded(scene) -> str:
-    """Names of the infinite emitters (sky, sun, envmap) of ``scene`` when its bounding box
-    misses part of its shapes, else "". Their ``sample_ray`` (the radiosity prepass's
-    particles) starts on Mitsuba's bounding sphere of ``scene.bbox()``: a box that misses the
-    merged walls of a room (Mitsuba 3.9.1: a merged mesh reports an invalid bbox) gives their
-    light the flux of a far too small sphere, e.g. 3e-7 W instead of ~30 W."""
-    infinite = [e for e in scene.emitters()
-                if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)]
-    if not infinite:
-        return ""
-    bounds = scene_bounds(scene)
-    if bounds.empty:
-        return ""
-    box = scene.bbox()
-    lo, hi = np.asarray(bounds.lo), np.asarray(bounds.hi)
-    tol = 1e-4 * float(np.linalg.norm(hi - lo))
-    if box.valid() and np.all(np.asarray(box.min, dtype=np.float64).ravel() <= lo + tol) \
-            and np.all(np.asarray(box.max, dtype=np.float64).ravel() >= hi - tol):
-        return ""
-    return ", ".join(f"{e.class_name()} '{e.id()}'" for e in infinite)
-
-
-def _box_str(box) -> str:
-    if not box.valid():
-        return "invalid"
-    lo, hi = (np.asarray(v, dtype=np.float64).ravel().round(6).tolist() for v in (box.min, box.max))
-    return f"{lo} … {hi}"
-
-
-class CacheStructure:
-    """The prepass output: ``alpha`` (the near-field radius), ``patches``, ``elements`` (or
-    None), ``solution`` (None with fake_gi), ``cache``
-    (:class:`~mi_twopass.prepass.radiance_cache.RadianceCache`), ``near``
-    (:class:`~mi_twopass.prepass.near_field.NearField`), ``scale`` (the scene's diagonal) and
-    ``lambertian`` (:class:`~mi_twopass.scene.lambertian.LambertianShapes`: where a vertex may
-    read the cache);
-    ``cache`` is None where no vertex reads it (a finite max_depth, component "direct"). A
-    plain class, indexable by name: Dr.Jit does not traverse it as loop state."""
-
-    def __init__(self, **parts):
-        self.__dict__.update(parts)
-
-    def __getitem__(self, name):
-        return self.__dict__[name]
 
 
 class RadianceCacheIntegrator(TwoPassIntegrator):
@@ -314,92 +233,38 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 self.max_points,
                 self.max_clusters, self.rays_per_cluster, self.max_near_triangles, self.cell_rel)
 
-    def alpha(self, scene, points=None) -> float:
-        """``alpha``, else ``alpha_rel`` × the bounding-box diagonal of the camera's shading
-        ``points`` (:func:`~mi_twopass.prepass.radiance_cache.default_alpha`; the scene's
-        bounding-box diagonal without points)."""
-        if self.alpha_abs is not None:
-            return self.alpha_abs
-        scene_diag = scene_diagonal(scene)
-        return default_alpha(np.zeros((0, 3)) if points is None else points, self.alpha_rel,
-                             scene_diag)
+    @property
+    def cache_settings(self) -> CacheSettings:
+        """Everything the prepass reads, from the XML properties (checked at load)."""
+        return CacheSettings(alpha_rel=self.alpha_rel, alpha=self.alpha_abs,
+                             fake_gi=self.fake_gi, ambient=self.ambient, radiosity=self.radiosity,
+                             max_points=self.max_points, max_clusters=self.max_clusters,
+                             rays_per_cluster=self.rays_per_cluster,
+                             max_near_triangles=self.max_near_triangles,
+                             near_cell_rel=self.cell_rel, ignore_media=self.ignore_media,
+                             path_only=not self.reads_cache and self.debug == "none",
+                             debug_view=self.debug != "none")
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
-        """Shading points, coarse solution (radiosity), SH far field (§4.1), near-field BVH
-        (§7). Only purely diffuse surfaces carry radiosity into the cache: the shading points
-        are the camera's first purely diffuse hits, and the SH gather rays and the near-field
-        triangles read 0 on every other surface (the render traces paths there)."""
-        if not self.ignore_media:
-            check_no_media(scene)
-        scale = scene_diagonal(scene)
-        unbounded = infinite_emitters_unbounded(scene)
-        if unbounded:
-            warnings.warn(
-                f"radiance_cache: the scene's bounding box ({_box_str(scene.bbox())}) does not "
-                f"hold all its shapes (Mitsuba's merged meshes report none), so the "
-                f"radiosity prepass would shoot the light of {unbounded} from a wrong sphere; "
-                "the cache is not used, the image is path traced", stacklevel=2)
-        if (not self.reads_cache or unbounded) and self.debug == "none":  # plain path tracing
-            return CacheStructure(alpha=0.0, patches=None, solution=None, cache=None, near=None,
-                                  split_complete=True, scale=scale, elements=None,
-                                  lambertian=LambertianShapes(scene))
-        sensor = getattr(self, "prepass_sensor", None)
-        if sensor is None and len(scene.sensors()):
-            sensor = scene.sensors()[0]
-        points = collect_shading_points(scene, sensor, self.max_points, seed) \
-            if sensor is not None else None
-        alpha = self.alpha(scene, None if points is None else points[0])
-        rad = None if self.fake_gi else build_radiosity(scene, self.radiosity, seed)
-        patches = rad.patches if rad is not None else \
-            build_patches(scene, max_patches=self.radiosity.max_patches, seed=seed)
-        lambertian = LambertianShapes(scene)
-        shape_diffuse = lambertian.per_shape
-        # a near triangle sends R_t only from a cached patch (as cached_surface at render time)
-        patch_diffuse = shape_diffuse[np.asarray(patches.shape_index, dtype=np.int64)] \
-            & np.asarray(patches.is_diffuse, dtype=bool)
-        solution = rad.solution if rad is not None else None
-        elements = rad.elements if rad is not None else None
-        tri_B = np.asarray(solution.B_reflected)[np.asarray(patches.tri_patch)] \
-            if solution is not None else np.zeros((len(patches.tri_patch), 3))
-        diffuse = patch_diffuse[np.asarray(patches.tri_patch)] if len(patch_diffuse) else \
-            np.zeros(0, dtype=bool)
-        tri_B = np.where(diffuse[:, None], tri_B, 0.0)
-        cache = build_radiance_cache(scene, solution, alpha, sensor=sensor, shading_points=points,
-                                     max_points=self.max_points, max_clusters=self.max_clusters,
-                                     rays_per_cluster=self.rays_per_cluster, seed=seed,
-                                     ambient=self.ambient if self.fake_gi else 0.0,
-                                     fake_gi=self.fake_gi or sensor is None)
-        # alpha grows where max_clusters cannot cover the points with clusters that small
-        # (fit_clusters): the near field must reach as far as the far field leaves out
-        alpha = cache.alpha
-        # §5: triangles near the camera's shading points split lazily until smaller than alpha
-        verts, tri_n, tri_B, split_complete = split_near_triangles(
-            patches.tri_vertices, patches.tri_normal, tri_B,
-            np.zeros((0, 3)) if points is None else points[0], alpha,
-            max_triangles=self.max_near_triangles)
-        seen = ~buried_triangles(scene, verts, tri_n)  # inside a solid: never visible (§5)
-        near = build_near_field(verts[seen], tri_n[seen], tri_B[seen],
-                                points=None if points is None else points[0], alpha=alpha,
-                                cell_size=self.cell_rel * alpha)
-        return CacheStructure(alpha=alpha, patches=patches, solution=solution, cache=cache,
-                              near=near, split_complete=split_complete, scale=scale,
-                              elements=elements, lambertian=lambertian)
+        """Shading points, coarse solution, SH far field, near field
+        (:func:`mi_twopass.prepass.radiance_cache.build`)."""
+        return build_cache(scene, self.cache_settings, seed, sensor=self.prepass_sensor)
 
     def prepass_stats(self, s):
-        if s["cache"] is None:
+        if s.cache is None:
             return {"prepass_rays": 0, "NRT": 0, "NFGS": 0, "CS": 0, "cache_bytes": 0,
                     "alpha": 0.0}
-        radiosity_rays = int(s["solution"].rays) if s["solution"] is not None else 0
-        cache, near = s["cache"], s["near"]
-        sol_bytes = int(s["solution"].nbytes) if s["solution"] is not None else 0
+        radiosity_rays = int(s.solution.rays) if s.solution is not None else 0
+        cache, near = s.cache, s.near
+        sol_bytes = int(s.solution.nbytes) if s.solution is not None else 0
         cs = int(cache.nbytes + near.nbytes)
         return {"prepass_rays": radiosity_rays + cache.rays + cache.shading_rays,
                 "NRT": radiosity_rays + cache.rays, "sh_gather_rays": cache.rays,
                 "NFGS": cache.count, "shading_points": int(len(cache.points)),
-                "patches": int(s["patches"].count), "bvh_nodes": near.node_count,
-                "near_triangles": int(len(near.verts)), "split_complete": s["split_complete"],
-                "CS": cs, "cache_bytes": cs + sol_bytes, "alpha": s["alpha"]}
+                "patches": int(s.patches.count), "bvh_nodes": near.node_count,
+                "near_triangles": int(len(near.verts)), "split_complete": s.split_complete,
+                "CS": cs, "cache_bytes": cs + sol_bytes, "alpha": s.alpha}
 
     def _finish_stats(self, sensor, spp, prepass_seconds, render_seconds):
         super()._finish_stats(sensor, spp, prepass_seconds, render_seconds)
@@ -409,11 +274,11 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     def irradiance_terms(self, si, n, active):
         """(B_D, λ·B_C, BVH visits) at ``si`` with viewer-facing normal ``n``."""
         s = self.structure
-        L_F = s["cache"].coefficients(si.p, active)
-        B_D = s["cache"].far_field(si.p, n, active, coeffs=L_F)
+        L_F = s.cache.coefficients(si.p, active)
+        B_D = s.cache.far_field(si.p, n, active, coeffs=L_F)
         if self.lam == 0.0:
             return B_D, mi.Color3f(0.0), mi.UInt32(0)
-        B_C, visits = s["near"].correction(si.p, n, B_D, s["alpha"], active,
+        B_C, visits = s.near.correction(si.p, n, B_D, s.alpha, active,
                                            L_F=L_F if self.near_far == "direction" else None)
         return B_D, self.lam * dr.select(active, B_C, 0.0), dr.select(active, visits, 0)
 
@@ -439,10 +304,10 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         cache, ρ/π (B_D + λ B_C), and the BSDF ray there goes on only if it meets a surface
         that is not purely diffuse (whose outgoing light the cache does not hold)."""
         s = self.structure
-        scale = dr.opaque(mi.Float, min(1.0, s["scale"]))  # see mi_twopass.rays.spawn_offset
+        scale = dr.opaque(mi.Float, min(1.0, s.scale))  # see mi_twopass.rays.spawn_offset
         max_depth = self.depth_bound
         want_direct, want_indirect = self.want_direct, self.want_indirect
-        reads_cache = self.reads_cache and s["cache"] is not None
+        reads_cache = self.reads_cache and s.cache is not None
         ctx = mi.BSDFContext()
 
         ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
@@ -465,13 +330,13 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
             bsdf = si.bsdf(ray)
             flags = bsdf.flags()
-            diffuse = s["lambertian"].at(si, active)
+            diffuse = s.lambertian.at(si, active)
             # The BSDF ray of a cache vertex that meets a diffuse surface with a radiosity patch
             # ends here: the light that surface reflects is the cache term (its emission was
             # just counted). Elsewhere (glossy, glass, a shape without patches) it goes on.
             in_cache = mi.Bool(False)
             if reads_cache:
-                in_cache = cached_surface(s["patches"], s["elements"], si, after_cache & diffuse)
+                in_cache = cached_surface(s.patches, s.elements, si, after_cache & diffuse)
             active_next = active & si.is_valid() & ~in_cache & (depth + 1 < max_depth)
             smooth = mi.has_flag(flags, mi.BSDFFlags.Smooth)
             first_vertex = n_nondelta == 0
@@ -540,10 +405,10 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
     def near_sample(self, p, active):
         """Debug "samples": within 0.2 α of an SH sample position (a cluster centre)."""
-        cache = self.structure["cache"]
+        cache = self.structure.cache
         if cache.count == 0:
             return mi.Bool(False)
-        return cache.near_centre(p, 0.2 * self.structure["alpha"], active)
+        return cache.near_centre(p, 0.2 * self.structure.alpha, active)
 
 
 def fgo(scene, spp=4, seed=0, **props):

@@ -222,9 +222,9 @@ def test_tiny_bright_light_with_a_small_cluster_budget():
     integ = mi.load_dict({"type": "radiance_cache", **SMALL})
     mi.render(scene, integrator=integ, spp=1)
     s = integ.structure
-    assert s["cache"].count <= SMALL["max_clusters"]
-    assert s["cache"].radius.max() <= s["alpha"] * (1 + 1e-6)
-    assert s["alpha"] == integ.stats["alpha"] and s["alpha"] == s["cache"].alpha
+    assert s.cache.count <= SMALL["max_clusters"]
+    assert s.cache.radius.max() <= s.alpha * (1 + 1e-6)
+    assert s.alpha == integ.stats["alpha"] and s.alpha == s.cache.alpha
     diff, allowed, means = compare_with_path(scene, spp_path=256)
     assert np.all(diff <= allowed), (means, allowed)
 
