@@ -155,8 +155,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          triangles (default: 2048).
      * - particles_per_patch
        - |int|
-       - Particles the radiosity solver shoots per patch (default: 256) At least 65536 in all
-         (``prepass.radiosity.MIN_PARTICLES``), however few the patches.
+       - Particles the radiosity solver shoots per patch (default: 256). At least
+         65536 in all (``prepass.radiosity.MIN_PARTICLES``), however few the patches.
      * - elements_per_patch
        - |int|
        - Receiving elements per radiosity patch (as in ``radiosity_gather``); the SH gather

@@ -67,8 +67,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
          the error at 1024 spp by < 10 % and cost 4× the prepass time).
      * - particles_per_patch
        - |int|
-       - Particles the stochastic radiosity solver shoots per patch (default: 256) At least 65536 in all
-         (``prepass.radiosity.MIN_PARTICLES``), however few the patches.
+       - Particles the stochastic radiosity solver shoots per patch (default: 256). At least
+         65536 in all (``prepass.radiosity.MIN_PARTICLES``), however few the patches.
      * - elements_per_patch
        - |int|
        - Receiving elements per patch (Cohen et al. 1986 substructuring; default: 16, i.e.
