@@ -195,6 +195,19 @@ def lampshade():
     return d
 
 
+def lampshade_panel():
+    """A small one-sided emitting panel (two-sided diffuse, facing down) inside the open
+    two-sided diffuse cylinder: the shade's inside is lit steeply, near the panel only."""
+    d = box(light=False)
+    d["bulb"] = {"type": "rectangle",
+                 "to_world": T().translate([0, 0.2, 0]).rotate([1, 0, 0], 90).scale(0.05),
+                 "bsdf": {"type": "twosided", "bsdf": diffuse(0.7)},
+                 "emitter": {"type": "area", "radiance": rgb(400.0)}}
+    d["shade"] = {"type": "cylinder", "p0": [0, 0.0, 0], "p1": [0, 0.45, 0], "radius": 0.2,
+                  "bsdf": {"type": "twosided", "bsdf": diffuse(0.7)}}
+    return d
+
+
 def sky_in_open_box():
     """The box without its light under a uniform sky: light enters through the open front."""
     d = box(light=False)
@@ -327,6 +340,7 @@ VS_PATH = {
     "scale_1e4": scaled(1e4),
     "glass_light": glass_light,
     "lampshade": lampshade,
+    "lampshade_panel": lampshade_panel,
     "sky_open_box": sky_in_open_box,
     "directional": directional_only,
     "objects": objects,
