@@ -51,6 +51,7 @@ import numpy as np
 from .. import sh
 from ..scene.bounds import scene_bounds, scene_diagonal
 from ..scene.patches import build_patches
+from ..seeds import hash31
 from .near_field import build_near_field, buried_triangles, split_near_triangles
 from .radiosity import RadiositySettings
 from .radiosity import build as build_radiosity
@@ -67,10 +68,6 @@ GRID_MAX_RES = 64
 #: cluster-grid cell size over the median RBF support radius: a lane's cell lists the clusters
 #: whose support touches the cell, about (1 + 0.87 × this)² × those that hold the point
 GRID_CELL_REL = 0.5
-
-
-def _mix(seed: int, salt: int) -> int:
-    return (int(seed) * 0x9E3779B1 + salt * 0x85EBCA77) & 0x7FFFFFFF
 
 
 def _count(mask) -> int:
@@ -102,12 +99,12 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     size = np.asarray(sensor.film().crop_size(), dtype=np.int64)
     scale = min(1.0, float(np.sqrt(max_points / max(1, size[0] * size[1]))))
     w, h = max(1, int(size[0] * scale)), max(1, int(size[1] * scale))
-    rng = np.random.default_rng(_mix(seed, 1))
+    rng = np.random.default_rng(hash31(seed, 1))
     iy, ix = np.mgrid[0:h, 0:w]
     u = ((ix.ravel() + rng.random(w * h)) / w).astype(np.float32)
     v = ((iy.ravel() + rng.random(w * h)) / h).astype(np.float32)
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(_mix(seed, 2), w * h)
+    sampler.seed(hash31(seed, 2), w * h)
     ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(mi.Float(u), mi.Float(v)),
                                mi.Point2f(0.5, 0.5))
     ctx = mi.BSDFContext()
@@ -479,7 +476,7 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     coeffs = np.zeros((K, sh.SH_COUNT, 3))
     if K == 0 or rays_per_cluster < 1:
         return coeffs, 0
-    rng = np.random.default_rng(_mix(seed, 3))
+    rng = np.random.default_rng(hash31(seed, 3))
     m = int(rays_per_cluster)
     src = np.concatenate([ids[rng.integers(0, len(ids), m)] for ids in clusters])
     owner = np.repeat(np.arange(K), m)

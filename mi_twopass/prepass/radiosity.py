@@ -61,6 +61,7 @@ from .. import units
 from ..progress import progress as progress_bar
 from ..scene.patches import Patches, build_patches
 from ..scenefile import load_scene
+from ..seeds import splitmix64
 
 #: default cap on surface interactions per particle (see the module docstring for its bias)
 DEFAULT_MAX_BOUNCES = 1024
@@ -190,7 +191,7 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     # seed, offset and scale are opaque: as literals they would make every seed (every fresh
     # prepass) compile the particle kernel anew
     idx = dr.arange(mi.UInt64, n) + dr.opaque(mi.UInt64, first_index)
-    rng = mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, _mix(seed)), initseq=idx)
+    rng = mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, splitmix64(seed)), initseq=idx)
     active = dr.full(mi.Bool, True, n)
     o, d, flux = _sample_emission(scene, patches, rng, active)
     flux = flux * dr.opaque(mi.Float, 1.0 / n_total)
@@ -300,14 +301,6 @@ def _receiving_area(patches, flux):
         return area
     reached = np.asarray(flux).max(axis=1) > 0
     return np.where((area <= 0) & reached, geometric, area)
-
-
-def _mix(seed: int) -> int:
-    """64-bit hash of the seed (splitmix64), the PCG32 initial state of every particle."""
-    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
-    return z ^ (z >> 31)
 
 
 #: property / exposure / split-probe samples per receiving element, as many as a patch's: with 4,

@@ -78,6 +78,7 @@ from ..progress import progress
 from ..rays import spawn_ray
 from ..scene.bounds import scene_bounds
 from ..scene.lambertian import is_lambertian
+from ..seeds import hash31
 
 #: child index of a leaf
 LEAF = 0xFFFFFFFF
@@ -125,10 +126,6 @@ def depth_classes(max_depth: int) -> int:
     if max_depth < 0:
         return 1
     return int(max(1, min(max_depth - 1, MAX_DEPTH_CLASSES)))
-
-
-def _seed(seed, salt, extra=0) -> int:
-    return (int(seed) * 0x9E3779B1 + salt * 0x85EBCA77 + extra * 0xC2B2AE3D) & 0x7FFFFFFF
 
 
 def _sampler(seed, n):
@@ -443,7 +440,7 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
     w, h = (int(x) for x in film.crop_size())
     spp = settings.size_spp
     n = w * h * spp
-    sampler = _sampler(_seed(seed, _SALT_SIZE), n)
+    sampler = _sampler(hash31(seed, _SALT_SIZE), n)
     idx = dr.arange(mi.UInt32, n)
     pixel = idx // spp
     pos = mi.Vector2f(mi.Float(pixel % w), mi.Float(pixel // w)) + sampler.next_2d()
@@ -530,7 +527,7 @@ def probe_emitters(scene, seed, bounds, n_probe=256):
     if E == 0:
         return np.zeros(0), np.zeros(0, np.int64)
     idx = dr.arange(mi.UInt32, E * n_probe) // n_probe
-    sampler = _sampler(_seed(seed, _SALT_PROBE), E * n_probe)
+    sampler = _sampler(hash31(seed, _SALT_PROBE), E * n_probe)
     s2, s3, s3b = sampler.next_2d(), sampler.next_2d(), sampler.next_2d()
     ray_a, w = emitter_rays(scene, bounds, idx, s2, s3)
     ray_b, _ = emitter_rays(scene, bounds, idx, s2, s3b)
@@ -764,7 +761,7 @@ def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim
     """Adapt every emitter's light quadtree level by level (§4.1 steps 2–3 on pilot rays).
 
     Returns the tree and the number of pilot rays."""
-    rng = np.random.default_rng(_seed(seed, _SALT_NUMPY, 1))
+    rng = np.random.default_rng(hash31(seed, _SALT_NUMPY, 1))
     n_em = len(budgets)
     active_em = np.nonzero(budgets > 0)[0]
     base = np.clip(np.floor(np.log(np.maximum(budgets, 1) / 4.0) / np.log(4.0)), 0,
@@ -781,7 +778,7 @@ def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim
     thresh2 = (settings.light_split_dist * bounds.diagonal) ** 2
     for step in range(settings.light_levels + 1):
         sig, pos, hit, seen, nr = _pilot(scene, bounds, tables, seen_rex, adapt_dim, em, lev,
-                                         ix, iy, rng, _seed(seed, _SALT_PILOT, step), n_em)
+                                         ix, iy, rng, hash31(seed, _SALT_PILOT, step), n_em)
         pilot_rays += nr
         first = len(tree.em)
         tree.append(em, lev, ix, iy, sig, pos, hit, seen)
@@ -865,7 +862,7 @@ def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct):
     reps = np.maximum(1, np.round(budgets / np.maximum(4 * n_leaves, 1))).astype(np.int64)
     lanes = np.repeat(np.repeat(leaves, reps[tree.em[leaves]]), 4)
     q = np.tile(np.arange(4), len(lanes) // 4)
-    rng = np.random.default_rng(_seed(seed, _SALT_NUMPY, 2))
+    rng = np.random.default_rng(hash31(seed, _SALT_NUMPY, 2))
     em = tree.em[lanes]
     h = np.ldexp(1.0, -(tree.lev[lanes] + 1))
     scale = h * h / reps[em]
@@ -890,7 +887,7 @@ def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct):
                         dr.zeros(mi.Float, capacity), dr.zeros(mi.Float, 3 * capacity),
                         dr.zeros(mi.UInt32, capacity))
                 counter = dr.zeros(mi.UInt32, 1)
-                sampler = _sampler(_seed(seed, _SALT_PHOTON, b), len(sel))
+                sampler = _sampler(hash31(seed, _SALT_PHOTON, b), len(sel))
                 n_rays, first_hit = _photon_trace(
                     scene, tables, ray, flux, sampler, recs, counter, capacity,
                     mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth))
@@ -1075,7 +1072,7 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
     out = np.ones(len(nodes))
     if len(nodes) == 0:
         return out, 0
-    rng = np.random.default_rng(_seed(seed, _SALT_NUMPY, 3))
+    rng = np.random.default_rng(hash31(seed, _SALT_NUMPY, 3))
     k = int(round(math.sqrt(m)))
     lane_node = np.repeat(np.arange(len(nodes)), k * k)
     sub = np.tile(np.arange(k * k), len(nodes))

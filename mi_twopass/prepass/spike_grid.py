@@ -103,6 +103,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..seeds import splitmix64
 from .radiosity import RadiositySettings
 from .radiosity import build as build_radiosity
 
@@ -126,18 +127,10 @@ _TINY = 1e-30
 _SALT_SOURCES, _SALT_CAMERA, _SALT_POINTS, _SALT_VIS, _SALT_BOUNCE = 0x51, 0xCA, 0x9E, 0x715, 0xB0
 
 
-def _mix(seed: int) -> int:
-    """64-bit hash of a seed (splitmix64): the PCG32 initial state of a stream."""
-    z = (int(seed) + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
-    return z ^ (z >> 31)
-
-
 def _rng(n, seed, salt, first=0):
     # opaque: literal seeds would compile the kernels that use the stream anew for every seed
     idx = dr.arange(mi.UInt64, n) + dr.opaque(mi.UInt64, first)
-    return mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, _mix(_mix(seed) ^ salt)), initseq=idx)
+    return mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, splitmix64(splitmix64(seed) ^ salt)), initseq=idx)
 
 
 def _np3(v):
