@@ -859,7 +859,7 @@ class SpikeGrid:
 # Building
 
 
-@dataclass
+@dataclass(frozen=True)
 class SpikeSettings:
     """Parameters of :func:`build_spike_grid` (see the module docstring)."""
 
