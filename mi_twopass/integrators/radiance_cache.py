@@ -8,8 +8,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.radiance_cache import ALPHA_REL, CacheSettings, cached_surface
-from ..prepass.radiance_cache import build as build_cache
+from ..prepass.sh_cache import ALPHA_REL, CacheSettings, cached_surface
+from ..prepass.sh_cache import build as build_cache
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
                    read_radiosity_budget)
 from .pathtrace import (MAX_DELTA_DEPTH, bsdf_continue, by_component, emission_mis,
@@ -54,7 +54,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     where its BSDF has a diffuse-reflection lobe and nothing else (no glossy, delta,
     transmission or null lobe: not ``plastic``, ``blendbsdf``, ``roughconductor``,
     ``thindielectric``, ``mask``) and its radiosity patch on the side hit is diffuse and not cut
-    by geometry (:func:`~mi_twopass.prepass.radiance_cache.cached_surface`). The SH gather rays
+    by geometry (:func:`~mi_twopass.prepass.sh_cache.cached_surface`). The SH gather rays
     read B_r/π only on cached surfaces (0 elsewhere), the near-field triangles of other
     surfaces have R_t = 0, so ρ/π (B_D + λ B_C) estimates the light that reaches x *from cached
     surfaces* and nothing else. The rest is path traced, never read from the cache: a vertex
@@ -171,7 +171,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - |int|
        - Most SH samples (clusters) (default: 1024). Where that many clusters within ``alpha``
          cannot cover the shading points, ``alpha`` grows until they can
-         (:func:`~mi_twopass.prepass.radiance_cache.fit_clusters`; stat ``alpha``): a far field
+         (:func:`~mi_twopass.prepass.sh_cache.fit_clusters`; stat ``alpha``): a far field
          stands for a cluster only if the near field reaches as far as the cluster.
      * - rays_per_cluster
        - |int|
@@ -248,7 +248,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
         """Shading points, coarse solution, SH far field, near field
-        (:func:`mi_twopass.prepass.radiance_cache.build`)."""
+        (:func:`mi_twopass.prepass.sh_cache.build`)."""
         return build_cache(scene, self.cache_settings, seed, sensor=self.prepass_sensor)
 
     def prepass_stats(self, s):

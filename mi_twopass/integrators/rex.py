@@ -2,7 +2,7 @@
 
 Heckbert, "Adaptive Radiosity Textures for Bidirectional Ray Tracing", SIGGRAPH 1990
 (docs/design.md "Papers"): §3.4 (size, light and eye passes), §4 (implementation). The prepass
-(size pass, light pass, rex build) lives in :mod:`mi_twopass.prepass.rex`; this module is the
+(size pass, light pass, rex build) lives in :mod:`mi_twopass.prepass.rex_textures`; this module is the
 plugin and its eye pass.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .. import units
-from ..prepass.rex import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes
+from ..prepass.rex_textures import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes
 from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .pathtrace import (by_component, emission_mis, emitter_sample_mis, path_start,
@@ -231,7 +231,7 @@ class RexIntegrator(TwoPassIntegrator):
                            light_split_dist=self.light_split_dist)
 
     def prepass(self, scene, seed):
-        """Size pass, light pass and rex build (§3.4), by :func:`..prepass.rex.build_rexes`."""
+        """Size pass, light pass and rex build (§3.4), by :func:`..prepass.rex_textures.build_rexes`."""
         return build_rexes(scene, self.rex_settings(scene), seed)
 
     def prepass_stats(self, pre):

@@ -20,7 +20,7 @@ import pytest
 import mi_twopass  # noqa: F401
 import mi_twopass.integrators.radiance_cache  # noqa: F401  (registers the plugin)
 from mi_twopass.integrators.radiance_cache import BIAS_BOUND
-from mi_twopass.prepass.radiance_cache import (ClusterGrid, RadianceCache,
+from mi_twopass.prepass.sh_cache import (ClusterGrid, RadianceCache,
                                                cluster_points, default_alpha)
 
 T = mi.ScalarTransform4f

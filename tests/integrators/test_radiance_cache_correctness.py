@@ -31,7 +31,7 @@ import mi_twopass  # noqa: F401
 import mi_twopass.integrators.radiance_cache  # noqa: F401  (registers the plugin)
 from mi_twopass.evaluation.statistics import block_means
 from mi_twopass.integrators.radiance_cache import BIAS_BOUND  # the stated bias: 15 %
-from mi_twopass.prepass.radiance_cache import fit_clusters
+from mi_twopass.prepass.sh_cache import fit_clusters
 
 T = mi.ScalarTransform4f
 
