@@ -8,21 +8,18 @@ relMSE against the cached path reference.
 """
 import argparse
 import os
-import sys
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-import mi_twopass  # noqa: E402,F401
-import matplotlib  # noqa: E402
+import mi_twopass  # noqa: F401
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
-from mi_twopass.evaluation.harness import timed_render  # noqa: E402
-from mi_twopass.evaluation.images import srgb_tonemap  # noqa: E402
-from mi_twopass.evaluation.metrics import relmse  # noqa: E402
-from mi_twopass.evaluation.reference import reference_image  # noqa: E402
-from mi_twopass.scenefile import load_scene, parse_defines  # noqa: E402
+from mi_twopass.evaluation.harness import timed_render
+from mi_twopass.evaluation.images import srgb_tonemap
+from mi_twopass.evaluation.metrics import relmse
+from mi_twopass.evaluation.reference import reference_image
+from mi_twopass.scenefile import load_scene, parse_defines
 
 
 def at_time(scene, spec, seconds):

@@ -7,20 +7,17 @@ the image is finite, and relMSE against a path render of 16× the spp made in th
 """
 import argparse
 import os
-import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-import mitsuba as mi  # noqa: E402
+import mitsuba as mi
 
 mi.set_variant(os.environ.get("MI_TWOPASS_VARIANT", "cuda_ad_rgb"))
 
-import drjit as dr  # noqa: E402
-import numpy as np  # noqa: E402
+import drjit as dr
+import numpy as np
 
-import mi_twopass  # noqa: E402
-from mi_twopass.evaluation.metrics import relmse  # noqa: E402
+import mi_twopass
+from mi_twopass.evaluation.metrics import relmse
 
 
 def main():

@@ -7,20 +7,16 @@ Per spp: ART (prepass + render seconds of a fresh integrator), the direct-only r
 (ART over it), FGO_render (render seconds alone over it: the per-sample cost of the cache),
 NRT (rays traced for GI), NFGS (SH samples), CS (cache bytes), BVH nodes visited per viewing ray
 and alpha. Timings are the median of ``--repeat`` runs (:func:`~mi_twopass.integrators.
-radiance_cache.fgo` compiles kernels untimed first): compare ratios, not seconds, on a shared
+evaluation.table1.fgo` compiles kernels untimed first): compare ratios, not seconds, on a shared
 machine.
 """
 import argparse
-import os
 import statistics
-import sys
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-import mi_twopass  # noqa: E402,F401
-from mi_twopass.evaluation.harness import parse_integrator_spec  # noqa: E402
-from mi_twopass.integrators.radiance_cache import fgo  # noqa: E402
-from mi_twopass.scenefile import load_scene, parse_defines  # noqa: E402
+import mi_twopass  # noqa: F401
+from mi_twopass.evaluation.harness import parse_integrator_spec
+from mi_twopass.evaluation.table1 import fgo
+from mi_twopass.scenefile import load_scene, parse_defines
 
 
 def main():

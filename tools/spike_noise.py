@@ -8,19 +8,15 @@ of relMSE at that spp), the median and largest relMSE of one render, and the med
 seconds. The reference is the cached path reference (``--ref-spp``).
 """
 import argparse
-import os
-import sys
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import mi_twopass  # noqa: F401
+import mitsuba as mi
+import numpy as np
 
-import mi_twopass  # noqa: E402,F401
-import mitsuba as mi  # noqa: E402
-import numpy as np  # noqa: E402
-
-from mi_twopass.evaluation.harness import make_integrator  # noqa: E402
-from mi_twopass.evaluation.metrics import RELMSE_EPS  # noqa: E402
-from mi_twopass.evaluation.reference import reference_image  # noqa: E402
-from mi_twopass.scenefile import load_scene, parse_defines  # noqa: E402
+from mi_twopass.evaluation.harness import make_integrator
+from mi_twopass.evaluation.metrics import RELMSE_EPS
+from mi_twopass.evaluation.reference import reference_image
+from mi_twopass.scenefile import load_scene, parse_defines
 
 
 def main():

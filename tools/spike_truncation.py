@@ -28,20 +28,17 @@ Prints a Markdown table (README "Results") and writes it with the per-config num
 import argparse
 import json
 import os
-import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import mi_twopass  # noqa: F401
+import drjit as dr
+import mitsuba as mi
+import numpy as np
 
-import mi_twopass  # noqa: E402,F401
-import drjit as dr  # noqa: E402
-import mitsuba as mi  # noqa: E402
-import numpy as np  # noqa: E402
-
-from mi_twopass.evaluation import metrics  # noqa: E402
-from mi_twopass.evaluation.harness import make_integrator  # noqa: E402
-from mi_twopass.evaluation.reference import reference_image  # noqa: E402
-from mi_twopass.scenefile import load_scene, parse_defines  # noqa: E402
+from mi_twopass.evaluation import metrics
+from mi_twopass.evaluation.harness import make_integrator
+from mi_twopass.evaluation.reference import reference_image
+from mi_twopass.scenefile import load_scene, parse_defines
 
 DEFAULT_CONFIGS = "complete=true;complete=false;complete=true:defensive=0;" \
                   "visibility_max_rays=20;complete=false:visibility_max_rays=20"

@@ -8,16 +8,12 @@ ART, FGO (radiance_cache only), NRT, NFGS, CS, Heckbert's light rays / % hit / r
 """
 import argparse
 import json
-import os
-import sys
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import mi_twopass  # noqa: F401
+import mitsuba as mi
 
-import mi_twopass  # noqa: E402,F401
-import mitsuba as mi  # noqa: E402
-
-from mi_twopass.evaluation.harness import make_integrator, parse_integrator_spec  # noqa: E402
-from mi_twopass.scenefile import load_scene, parse_defines  # noqa: E402
+from mi_twopass.evaluation.harness import make_integrator, parse_integrator_spec
+from mi_twopass.scenefile import load_scene, parse_defines
 
 
 def main():
@@ -34,7 +30,7 @@ def main():
     stats = dict(integ.stats)
     name, props = parse_integrator_spec(a.integrator)
     if name == "radiance_cache":
-        from mi_twopass.integrators.radiance_cache import fgo
+        from mi_twopass.evaluation.table1 import fgo
 
         stats["FGO"], _ = fgo(scene, spp=a.spp, **props)
     stats["implicit_per_viewing_ray"] = stats.get("implicit_rays", 0) / max(1, stats["viewing_rays"])

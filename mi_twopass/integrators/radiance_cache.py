@@ -202,7 +202,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     ``NFGS`` (number of SH samples = clusters), ``CS`` (cache bytes: SH field + BVH + start
     lists), ``bvh_visits`` (BVH nodes visited), ``near_triangles`` (after the lazy split),
     ``split_complete``.
-    FGO (time over a direct-only render) needs a second render: :func:`fgo`
+    FGO (time over a direct-only render) needs a second render:
+    :func:`mi_twopass.evaluation.table1.fgo`
     (``tools/radiance_cache_table.py`` prints the Table 1 columns).
     """
 
@@ -409,34 +410,6 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         if cache.count == 0:
             return mi.Bool(False)
         return cache.near_centre(p, 0.2 * self.structure.alpha, active)
-
-
-def fgo(scene, spp=4, seed=0, **props):
-    """Arikan et al. Table 1 FGO: the time of a ``radiance_cache`` image over the time of the same
-    image without global illumination (``component="direct"``: the same camera rays, emitter
-    sample and BSDF ray, no cache term). Both are rendered once untimed first (kernel
-    compilation); then the direct image is timed with its (unused) prepass already built, and
-    ``radiance_cache`` with a fresh integrator, so its prepass is paid and counted.
-
-    → ``(fgo, stats)``; ``stats`` also holds ``FGO_render`` (render seconds alone over the direct
-    image's: the per-sample overhead of the cache lookup) and ``direct_seconds``."""
-    direct = mi.load_dict({"type": "radiance_cache", "component": "direct", "lambda": 0.0,
-                           "fake_gi": True, **props})
-    mi.render(scene, integrator=direct, spp=spp, seed=seed)  # prepass + compile, untimed
-    mi.render(scene, integrator=mi.load_dict({"type": "radiance_cache", **props}), spp=spp,
-              seed=seed)  # compile, untimed
-    img = mi.render(scene, integrator=direct, spp=spp, seed=seed)
-    t_direct = direct.stats["render_seconds"]
-    rc = mi.load_dict({"type": "radiance_cache", **props})
-    img = mi.render(scene, integrator=rc, spp=spp, seed=seed)
-    dr.eval(img)
-    dr.sync_thread()
-    stats = dict(rc.stats)
-    t_rc = stats["prepass_seconds"] + stats["render_seconds"]
-    stats["direct_seconds"] = t_direct
-    stats["FGO_render"] = stats["render_seconds"] / max(t_direct, 1e-9)
-    stats["FGO"] = t_rc / max(t_direct, 1e-9)
-    return stats["FGO"], stats
 
 
 mi.register_integrator("radiance_cache", lambda props: RadianceCacheIntegrator(props))
