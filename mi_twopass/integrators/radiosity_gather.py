@@ -10,9 +10,8 @@ from dataclasses import replace
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.radiosity import RadiositySettings
+from ..prepass.radiosity import RadiositySettings, virtual_point_reached
 from ..prepass.radiosity import build as build_radiosity
-from ..rays import spawn_ray_to
 from ..scene.bounds import ray_scale
 from ..scenefile import SceneFileError
 from .base import FarGatherIntegrator, read_choice
@@ -163,8 +162,9 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         # however unoccluded the shadow ray (it ends on the surface from behind)
         cos_y = dr.dot(n, -wo_world)
         ok = active & (dist >= r_thresh) & (pdf_area > 0) & (dist2 > 0) & (cos_y > 0)
-        shadow = spawn_ray_to(si, p, scale)
-        visible = ok & ~scene.ray_test(shadow, ok)
+        # in the scene the patches belong to (the simplified prepass_scene, GSII)
+        visible = virtual_point_reached(self.structure.scene, sol, si, wo_world, pid, dist,
+                                        scale, ok)
         wo = si.to_local(wo_world)
         f = bsdf.eval(ctx, si, wo, visible)
         pmf = vl.pmf(pid, visible)

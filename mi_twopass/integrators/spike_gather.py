@@ -6,6 +6,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..prepass.radiosity import virtual_point_reached
 from ..prepass.spike_grid import INVALID, SpikeSettings
 from ..prepass.spike_grid import build as build_spike
 from ..progress import progress as progress_bar
@@ -436,12 +437,13 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             cos_y = dr.dot(n_y, -w_y)
             is_vl &= (dist >= r_thresh) & (pdf_a > 0) & (cos_y > 0) & (dist2 > 0) & (P_sel > 0)
 
-            target = dr.select(is_vl, p_y, ds_l.p)
-            shadow = spawn_ray_to(si, target, scale)
-            margin = 0.05 * src.gather("radius", sid, is_vl)  # flat sample points of curved
-            shadow.maxt = dr.select(is_vl, dr.maximum(shadow.maxt - margin, 0.0), shadow.maxt)
+            # emitters: a shadow ray; reclassified patches: the ray must first meet the patch
+            # where it is cached (virtual_point_reached: elsewhere the implicit ray traces on)
             cast = is_em | is_vl | use_fb
-            visible = cast & ~scene.ray_test(shadow, cast)
+            to_emitter = cast & ~is_vl
+            shadow = spawn_ray_to(si, ds_l.p, scale)
+            visible = to_emitter & ~scene.ray_test(shadow, to_emitter)
+            visible |= virtual_point_reached(scene, sol, si, w_y, vl_pid, dist, scale, is_vl)
             n_explicit += dr.select(cast, 1, 0)
             n_fallback += dr.select(use_fb, 1, 0)
 

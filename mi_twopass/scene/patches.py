@@ -358,6 +358,9 @@ class Patches:
     exposure: np.ndarray | None = None  # (N,) open fraction area / geometric_area (probed)
     probe_rays: int = 0  # rays cast by the exposure and split probes
     is_split: np.ndarray | None = None  # (N,) bool: cut by geometry (_probe_split), not cached
+    #: (N,) bool: irradiance too uneven across it to be read as its mean (set by the radiosity
+    #: solve, :func:`mi_twopass.prepass.radiosity.receiver_spread`), not cached
+    is_uneven: np.ndarray | None = None
     _tables: dict = field(default_factory=dict, repr=False)
 
     # -- sizes -------------------------------------------------------------------------------
@@ -421,6 +424,15 @@ class Patches:
     def is_diffuse_at(self, si, active=True):
         """``mi.Bool``: ``si`` lies on a diffuse patch (its reflected radiosity is meaningful)."""
         return dr.gather(mi.Bool, self._tables["patch_is_diffuse"], self.lookup(si, active))
+
+    def uncache(self, mask) -> None:
+        """Stop caching the patches of ``mask`` (gather rays landing there are traced on):
+        ``is_diffuse`` and its Dr.Jit table lose them; ``is_uneven`` records them."""
+        mask = np.asarray(mask, dtype=bool)
+        self.is_uneven = mask if self.is_uneven is None else (self.is_uneven | mask)
+        self.is_diffuse = self.is_diffuse & ~mask
+        self._tables["patch_is_diffuse"] = mi.Bool(
+            np.append(self.is_diffuse.astype(bool), False))
 
     def gather(self, name, patch_ids, active=True):
         """Per-patch data by id in Dr.Jit: ``name`` ∈ {"area" (mi.Float), "center"

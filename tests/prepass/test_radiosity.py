@@ -381,3 +381,25 @@ def test_shared_build_and_virtual_luminaire_sampler_agree_with_their_pmf():
     _, p = stats.chisquare(counts, pmf[expected] * n / pmf[expected].sum())
     assert p > 1e-3
     assert np.all(np.asarray(vl.contains(mi.UInt32(expected.astype(np.uint32)))))
+
+
+def test_receivers_lit_unevenly_are_not_cached():
+    """A floor under a point light 5 cm above one corner: the patch holding that corner gets
+    most of its flux there (its flux centroid far off its centre), so it is not cached (far
+    gathers trace on); under a light 10 m up the same floor is lit evenly and stays cached."""
+    from mi_twopass.prepass.radiosity import RadiositySettings, build
+
+    def floor_under(position):
+        return mi.load_dict({
+            "type": "scene",
+            "floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},
+            "light": {"type": "point", "position": position,
+                      "intensity": {"type": "rgb", "value": 1.0}}})
+
+    settings = RadiositySettings(max_patches=4, particles_per_patch=4096, elements_per_patch=1)
+    near = build(floor_under([0.9, 0.9, 0.05]), settings, seed=1).patches
+    far = build(floor_under([0.0, 0.0, 10.0]), settings, seed=1).patches
+    assert near.count == far.count >= 2
+    corner = int(np.argmin(np.linalg.norm(near.center[:, :2] - [0.9, 0.9], axis=1)))
+    assert near.is_uneven[corner] and not near.is_diffuse[corner]
+    assert not far.is_uneven.any() and far.is_diffuse.all()
