@@ -41,15 +41,19 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
     ``r_thresh = 0`` is the pure two-pass method (Rushmeier's implicit gather, §2.3) and an
     ``r_thresh`` larger than the scene is path tracing. Delta (specular) vertices are followed
     as in Mitsuba's ``path``; glossy and specular surfaces carry no patch radiosity, so a gather
-    ray that lands on one continues as a path. Only the *reflected* part B_r of a patch is
-    gathered: emission is added by the emitter-hit term with MIS, never twice.
+    ray that lands on one continues as a path. Neither do receivers (elements, else patches) that
+    geometry cuts or that are lit unevenly (their flux off centre or on the faces turned to a
+    light: :func:`mi_twopass.prepass.radiosity.receiver_spread`): their mean is no stand-in for
+    the light where gather rays land, so those rays trace on too. Only the *reflected* part B_r
+    of a patch is gathered: emission is added by the emitter-hit term with MIS, never twice.
 
     Virtual luminaires (GSII, "bright reflecting zones"): patches whose reflected radiosity is at
     least ``vl_threshold`` × the brightest patch's are sampled explicitly, one shadow ray per
     vertex, with probability ∝ B_r · area. A pair (x, y) is counted explicitly only when
-    |y − x| ≥ r_thresh, and a far gather ray that lands on a virtual luminaire adds nothing, so
-    the two estimators partition the far field and nothing is counted twice; near pairs stay
-    path-traced, so the r_thresh → ∞ limit is still path tracing.
+    |y − x| ≥ r_thresh and y lies where the radiosity is cached, and a far gather ray that lands
+    on a virtual luminaire adds nothing, so the two estimators partition the far field and
+    nothing is counted twice (:func:`mi_twopass.prepass.radiosity.virtual_point_reached`); near
+    pairs stay path-traced, so the r_thresh → ∞ limit is still path tracing.
 
     .. pluginparameters::
 
