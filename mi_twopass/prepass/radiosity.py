@@ -353,10 +353,11 @@ def receiving_elements(scene, max_patches: int, elements_per_patch: int, seed: i
 #: gather rays land. veach-bidir: elements of the lamp beside its small bright panel read 1.76×
 #: the light the gather rays should see there (their area mean was right: the rays land on the
 #: faces turned away), and the far reads of the whole image were 1.058× a path-traced estimate
-#: at the same hits; with this bound 1.006×, and the receivers it uncaches are at most ~1 % of
-#: the receiving area of every scene of scenes_xml/ and ../shared/scenes (tut-cbox 1.0 %,
-#: caustic 0.8 %, the others ≤ 0.5 %; 0 on the Cornell box, window_interior and the furnace). Chosen from those measurements: the bias left grows as it rises (0.1:
-#: 1.017×), the cost (gather rays traced on) as it falls.
+#: at the same hits (``tools/far_gather_hits.py``); with this bound 1.006–1.010× (±1 %). The
+#: receivers it uncaches are at most ~1 % of the receiving area of every scene of scenes_xml/
+#: and ../shared/scenes (tut-cbox 1.0 %, caustic 0.8 %, the others ≤ 0.5 %; 0 on the Cornell
+#: box, window_interior and the furnace). Chosen from those measurements: the bias left grows
+#: as it rises (0.1: 1.017×), the cost (gather rays traced on) as it falls.
 SPREAD_MAX = 0.05
 #: the noise floor of that offset: about 0.57 / sqrt(deposits) for uniform irradiance (the
 #: deposits' offsets, in units of the radius, have a spread of about 0.4 per axis); an offset
