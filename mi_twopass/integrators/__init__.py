@@ -20,10 +20,11 @@ PLUGINS = {
     "radiance_cache": "mi_twopass.integrators.radiance_cache",
     "rex": "mi_twopass.integrators.rex",
     "spike_gather": "mi_twopass.integrators.spike_gather",
+    "twopass": "mi_twopass.integrators.twopass",
 }
 
 #: modules holding variant-bound classes, imported before the plugins, in this order.
-_SHARED_MODULES = ("mi_twopass.integrators.base",)
+_SHARED_MODULES = ("mi_twopass.integrators.base", "mi_twopass.integrators.component_path")
 
 _registered = {}
 #: variants under which the stubs are registered

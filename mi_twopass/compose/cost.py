@@ -1,0 +1,240 @@
+"""``twopass``'s compositions and the cost model that chooses one per scene and camera.
+
+A *composition* names the technique that serves each part of path space (the parts of
+:mod:`mi_twopass.integrators.component_path`):
+
+======== ============ ========== ================================================================
+direct   indirect     caustics   estimator
+======== ============ ========== ================================================================
+emitter  path         off        Mitsuba's ``path`` (emitter + BSDF sampling, MIS), no prepass
+spike    path         off        ``spike_gather`` with no far gather (``r_thresh`` → ∞)
+spike    radiosity    off        ``spike_gather`` (spike lists + radiosity far gather)
+emitter  radiosity    off        ``radiosity_gather`` (GSII: virtual luminaires + far gather)
+emitter  cache        off        ``radiance_cache`` (SH far field + near-field correction)
+emitter  rex          rex        ``rex`` (photon quadtrees hold all of L(S|D)*D; direct light
+                                 by emitter sampling at the rex vertex)
+======== ============ ========== ================================================================
+
+"off" caustics are path traced (BSDF sampling through the specular chain), never dropped. Each
+row is one of the suite's estimators, each consistent (or within its stated bias bound) on its
+own, so every part of path space is estimated once in every composition.
+
+**The model.** For each candidate c the pilot (:mod:`mi_twopass.compose.pilot`) measures the
+prepass seconds T_c, the seconds t_c of one sample of every pixel, the relative variance v_c of
+one sample and the relative bias b_c of its image mean against the path pilot (squared, less
+both pilots' noise, clamped at 0). A render of N samples per pixel is predicted to take
+T_c + N·t_c seconds and to reach relMSE v_c/N + b_c²; the candidate with the smallest product
+(error × time: the inverse of the efficiency, prepass and bias included) is rendered.
+
+**Only what pays is built.** Before a candidate's prepass is built, its *best case* is bounded
+from the path pilot's variance split: a technique can at most remove the variance of the parts
+it serves (spike lists: the direct part; a far field: the indirect part; rexes: everything, but
+only where caustics carry at least :data:`CAUSTIC_SHARE` of the variance), it costs at least what
+``path`` costs per sample (every one traces the camera ray, a shadow ray and a BSDF ray per
+vertex) and its prepass at least 0 s. A candidate whose best case does not beat the best score
+measured so far by :data:`MIN_GAIN` is not built; nor is any once the pilot and the prepasses
+built so far have spent :data:`PILOT_BUDGET` of the time ``path`` is predicted to take for the
+render (a prepass cannot pay in a render shorter than itself; at most one prepass overshoots,
+as none is stopped once started, so one whose predicted floor, :data:`PREPASS_FLOOR_FACTOR` path
+samples per light path it traces, would pass the budget is not started); nor one the scene gives
+nothing to (one
+emitter for spike lists, no Lambertian surface for the far fields and rexes, a finite
+``max_depth`` for the far fields, which hold every path length).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: a candidate is built only if its best case beats the best score so far by this factor
+MIN_GAIN = 1.25
+#: rexes are tried only where the caustic part carries this share of path's pilot variance
+CAUSTIC_SHARE = 0.2
+
+#: a pilot's image-mean difference counts as bias beyond this many standard deviations
+BIAS_SIGMAS = 3.0
+#: building stops once the pilot and the prepasses built have taken this share of the time
+#: ``path`` is predicted to need for the render (``pilot_budget``)
+PILOT_BUDGET = 0.5
+#: a prepass is predicted to cost at least this many path samples' time per light path it
+#: traces (radiosity particles, rex photons); measured on the corpus at 128²: 2.4 (office,
+#: window_interior) to 38 (furnace), docs/design.md "twopass"
+PREPASS_FLOOR_FACTOR = 2.0
+
+DIRECT = ("emitter", "spike")
+INDIRECT = ("path", "radiosity", "cache", "rex")
+CAUSTICS = ("off", "rex")
+
+
+@dataclass(frozen=True)
+class Composition:
+    """One row of the module's table: the technique per part and the plugin that renders it
+    (``"path"``: :class:`~mi_twopass.integrators.component_path.ComponentPathIntegrator`)."""
+
+    direct: str
+    indirect: str
+    caustics: str
+    plugin: str
+    props: tuple = ()
+    #: the variance parts (of the path pilot) the technique can remove
+    serves: tuple = ()
+
+    @property
+    def name(self) -> str:
+        return f"direct={self.direct},indirect={self.indirect},caustics={self.caustics}"
+
+    @property
+    def needs_prepass(self) -> bool:
+        return self.plugin != "path"
+
+
+COMPOSITIONS = (
+    Composition("emitter", "path", "off", "path"),
+    Composition("spike", "path", "off", "spike_gather", (("r_thresh_rel", 1e9),), ("direct",)),
+    Composition("spike", "radiosity", "off", "spike_gather", (), ("direct", "indirect")),
+    Composition("emitter", "radiosity", "off", "radiosity_gather", (), ("indirect",)),
+    Composition("emitter", "cache", "off", "radiance_cache", (), ("indirect",)),
+    Composition("emitter", "rex", "rex", "rex", (), ("direct", "indirect", "caustic")),
+)
+
+
+def matching(direct=None, indirect=None, caustics=None) -> list:
+    """The compositions that agree with the choices forced from XML (``None``: free). Raises
+    ValueError naming the forced choices when none does (e.g. spike lists with the cache)."""
+    rows = [c for c in COMPOSITIONS
+            if (direct is None or c.direct == direct)
+            and (indirect is None or c.indirect == indirect)
+            and (caustics is None or c.caustics == caustics)]
+    if not rows:
+        forced = ", ".join(f"{k}={v!r}" for k, v in
+                           (("direct", direct), ("indirect", indirect), ("caustics", caustics))
+                           if v is not None)
+        raise ValueError(f"twopass: no composition has {forced}; the ones there are: "
+                         + "; ".join(c.name for c in COMPOSITIONS))
+    return rows
+
+
+@dataclass(frozen=True)
+class SceneTraits:
+    """What the scene offers the techniques, read without building anything."""
+
+    emitters: int
+    lambertian: bool
+    max_depth: int
+
+
+def structural_reason(c: Composition, traits: SceneTraits) -> str | None:
+    """Why ``c`` cannot pay on this scene whatever its measurements (None: it may)."""
+    if c.direct == "spike" and traits.emitters < 2:
+        return f"{traits.emitters} emitter(s): a spike list of one source is emitter sampling"
+    if c.plugin in ("radiosity_gather", "radiance_cache", "rex") or c.indirect == "radiosity":
+        if not traits.lambertian:
+            return "no Lambertian surface to hold radiosity, a cache or rexes"
+    if c.indirect in ("radiosity", "cache") and traits.max_depth >= 0:
+        return (f"max_depth={traits.max_depth}: the far field holds light of every path "
+                "length, so a bounded path cannot end in it")
+    return None
+
+
+@dataclass
+class VarianceParts:
+    """The path pilot's relative variance in all and per part (:mod:`.pilot`)."""
+
+    total: float
+    direct: float
+    caustic: float
+    indirect: float
+
+    def best_case(self, c: Composition) -> float:
+        """The least relative variance ``c`` could reach: path's, less the parts it serves
+        (0 at least; the parts' covariances are ignored)."""
+        removed = sum(getattr(self, part) for part in c.serves)
+        return max(self.total - removed, 0.0)
+
+
+@dataclass
+class Measured:
+    """A candidate's pilot figures (module docstring) and its predicted render."""
+
+    prepass_seconds: float
+    seconds_per_spp: float
+    variance: float
+    bias2: float
+    mean_ratio: float
+
+    def predicted_error(self, spp: int) -> float:
+        return self.variance / spp + self.bias2
+
+    def predicted_seconds(self, spp: int) -> float:
+        return self.prepass_seconds + spp * self.seconds_per_spp
+
+    def score(self, spp: int) -> float:
+        """Predicted relMSE × seconds of a render of ``spp`` samples per pixel."""
+        return self.predicted_error(spp) * self.predicted_seconds(spp)
+
+
+def light_paths(integ, scene) -> int:
+    """The light paths a candidate's prepass traces: rex photons, else radiosity particles
+    (at least the radiosity prepass's floor)."""
+    from ..prepass.radiosity import MIN_PARTICLES
+
+    if hasattr(integ, "photon_budget"):
+        return int(integ.photon_budget(scene))
+    r = integ.radiosity
+    return max(int(r.max_patches) * int(r.particles_per_patch), MIN_PARTICLES)
+
+
+def prepass_floor(light_path_count: int, path: Measured, film_pixels: int) -> float:
+    """The least a prepass tracing ``light_path_count`` light paths is predicted to cost:
+    :data:`PREPASS_FLOOR_FACTOR` × that many path samples at the path pilot's cost."""
+    return PREPASS_FLOOR_FACTOR * light_path_count * path.seconds_per_spp / max(film_pixels, 1)
+
+
+def best_case_score(parts: VarianceParts, path: Measured, c: Composition, spp: int) -> float:
+    """The score ``c`` could at best reach: no prepass, path's cost per sample, no bias, the
+    variance of :meth:`VarianceParts.best_case`."""
+    return parts.best_case(c) * path.seconds_per_spp  # (v/N)·(N·t)
+
+
+def bias_squared(values: np.ndarray, path_values: np.ndarray) -> tuple[float, float]:
+    """(b², mean ratio): the squared relative difference of the image means of two pilots on
+    the same pixels, less the variance of that difference, where the difference exceeds
+    :data:`BIAS_SIGMAS` standard deviations (else 0). ``values``: (pixels, samples, 3)."""
+    def mean_and_var(v):
+        per_sample = v.mean(axis=(0, 2))  # one image mean per sample index: independent
+        return per_sample.mean(), per_sample.var(ddof=1) / len(per_sample)
+
+    m_c, var_c = mean_and_var(values)
+    m_p, var_p = mean_and_var(path_values)
+    if m_p <= 0:
+        return 0.0, 1.0
+    d2 = (m_c - m_p) ** 2
+    # counted only where the pilots tell it from noise (3 sigma): heavy-tailed light such as
+    # path-traced caustics makes the noise of a 1024-pixel mean larger than its variance says
+    if d2 <= BIAS_SIGMAS**2 * (var_c + var_p):
+        return 0.0, float(m_c / m_p)
+    return float((d2 - var_c - var_p) / m_p**2), float(m_c / m_p)
+
+
+@dataclass
+class Decision:
+    """What ``twopass`` chose and why: the composition, every candidate's figures and every
+    skipped one's reason (these go into ``integrator.stats``)."""
+
+    chosen: Composition
+    spp: int
+    measured: dict = field(default_factory=dict)   # name -> Measured
+    skipped: dict = field(default_factory=dict)    # name -> reason
+    best_case: dict = field(default_factory=dict)  # name -> best-case score
+
+    def reason(self) -> str:
+        m = self.measured[self.chosen.name]
+        others = [f"{n}: {self.measured[n].score(self.spp):.3g}" for n in self.measured
+                  if n != self.chosen.name]
+        text = (f"{self.chosen.name}: predicted relMSE x seconds {m.score(self.spp):.3g} at "
+                f"{self.spp} spp (relMSE {m.predicted_error(self.spp):.3g} in "
+                f"{m.predicted_seconds(self.spp):.3g} s)")
+        if others:
+            text += "; others " + ", ".join(others)
+        return text

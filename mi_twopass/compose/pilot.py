@@ -1,0 +1,139 @@
+"""Pilot samples: what one more sample per pixel costs and how much it varies, per estimator.
+
+``twopass``'s cost model (:mod:`mi_twopass.compose.cost`) needs, per candidate estimator, two
+numbers measured on *this* scene and camera: the seconds one sample of every pixel costs and the
+relative variance of one sample. Both come from a pilot: P pixels of the film drawn at random
+(the same pixels for every candidate), M independent camera samples each, traced by the
+candidate's ``sample`` exactly as its render would trace them.
+
+Cost per sample. A Dr.Jit call costs a fixed part (tracing the loop in Python, compiling or
+looking up the kernel, launching it) plus a part per lane. The pilot runs the same pixels three times,
+with M samples each (compiling the kernels), M again and 4M, and takes the slope of the last two:
+c = (t(4M) − t(M)) / (3·P·M) seconds per lane; a full-film sample costs c × film pixels.
+
+Relative variance. For pixel p, channel k, the sample variance s²_pk of the 6M samples, over
+the squared pixel value R_pk of a reference shared by all candidates, with relMSE's ε
+(:data:`mi_twopass.evaluation.metrics.RELMSE_EPS`)::
+
+    v = mean_pk s²_pk / (R_pk² + ε)
+
+so that a render of N samples per pixel has an expected relMSE of v / N (plus the square of its
+bias), the metric of the harness.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..evaluation.metrics import RELMSE_EPS
+from ..seeds import hash31
+
+#: salt of the pilot's sampler streams (mi_twopass.seeds)
+_SALT_PILOT = 0x5117
+
+
+@dataclass(frozen=True)
+class PilotSettings:
+    """Pixels drawn from the film and samples per pixel of the first of the two runs (the
+    second takes 4× as many). Defaults: 1024 pixels × (16 + 16 + 64) samples."""
+
+    pixels: int = 1024
+    samples: int = 16
+
+
+@dataclass
+class PilotPixels:
+    """The film pixels of a pilot: flat indices ``index`` (row-major), the film's size."""
+
+    index: np.ndarray
+    width: int
+    height: int
+
+    @property
+    def film_pixels(self) -> int:
+        return self.width * self.height
+
+
+def choose_pixels(sensor, count: int, seed: int) -> PilotPixels:
+    """``count`` distinct pixels of ``sensor``'s film (all of them if it has fewer), uniformly
+    at random."""
+    width, height = (int(v) for v in sensor.film().crop_size())
+    n = width * height
+    rng = np.random.default_rng(hash31(seed, _SALT_PILOT))
+    index = np.arange(n) if count >= n else np.sort(rng.choice(n, size=count, replace=False))
+    return PilotPixels(index=index.astype(np.uint32), width=width, height=height)
+
+
+def _camera_rays(sensor, pixels: PilotPixels, samples: int, sampler):
+    """One camera ray per (pixel, sample), sample-minor, with its importance weight."""
+    idx = mi.UInt32(np.repeat(pixels.index, samples))  # data, not a size baked into a kernel
+    offset = mi.Point2f(mi.Float(idx % pixels.width), mi.Float(idx // pixels.width))
+    crop = sensor.film().crop_offset()
+    pos = (offset + mi.Vector2f(crop) + sampler.next_2d()) / mi.Vector2f(
+        sensor.film().size())
+    ray, weight = sensor.sample_ray(0.0, sampler.next_1d(), pos, sampler.next_2d())
+    return ray, weight
+
+
+def run_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, seed: int):
+    """``estimator(scene, sampler, ray, active) -> Spectrum`` on ``samples`` camera rays per
+    pixel. Returns (values of shape (pixels, samples, 3), seconds including evaluation)."""
+    n = len(pixels.index) * samples
+    sampler = mi.load_dict({"type": "independent"})
+    # an opaque seed: a literal would make every run compile its kernel anew
+    sampler.seed(dr.opaque(mi.UInt32, hash31(seed, _SALT_PILOT, samples)), n)
+    t0 = time.perf_counter()
+    ray, weight = _camera_rays(sensor, pixels, samples, sampler)
+    L = estimator(scene, sampler, ray, mi.Bool(True))
+    L = mi.Color3f(L) * mi.Color3f(weight) + dr.zeros(mi.Color3f, n)  # n lanes, even if constant
+    dr.eval(L)
+    dr.sync_thread()
+    values = np.stack([np.asarray(L.x), np.asarray(L.y), np.asarray(L.z)], axis=-1)
+    seconds = time.perf_counter() - t0
+    return values.reshape(len(pixels.index), samples, 3), seconds
+
+
+@dataclass
+class PilotRun:
+    """One candidate's pilot: its samples (pixels, samples, 3), the seconds per lane of the
+    slope and of the larger run (an upper bound), and the lanes run."""
+
+    values: np.ndarray
+    seconds_per_lane: float
+    seconds: float
+    lanes: int
+
+    def seconds_per_spp(self, film_pixels: int) -> float:
+        """Predicted seconds of one sample of every pixel of the film."""
+        return self.seconds_per_lane * film_pixels
+
+
+def pilot(scene, sensor, pixels: PilotPixels, settings: PilotSettings, estimator, seed: int):
+    """Run ``estimator`` with M then 4M samples per pixel (see the module docstring) →
+    :class:`PilotRun`."""
+    m = settings.samples
+    v0, _ = run_samples(scene, sensor, pixels, m, estimator, seed)  # compiles the kernels
+    v1, t1 = run_samples(scene, sensor, pixels, m, estimator, seed + 1)
+    v2, t2 = run_samples(scene, sensor, pixels, 4 * m, estimator, seed + 2)
+    lanes = len(pixels.index) * m
+    slope = (t2 - t1) / (3 * lanes)
+    # a slope below a tenth of the big run's mean cost per lane is timer noise
+    per_lane = max(slope, 0.1 * t2 / (4 * lanes))
+    return PilotRun(values=np.concatenate([v0, v1, v2], axis=1), seconds_per_lane=per_lane,
+                    seconds=t1 + t2, lanes=6 * lanes)
+
+
+def relative_variance(values: np.ndarray, reference: np.ndarray, eps: float = RELMSE_EPS):
+    """v = mean over pixels and channels of s² / (R² + ε) (module docstring): the relMSE of a
+    one-sample-per-pixel render. ``values``: (pixels, samples, 3); ``reference``: (pixels, 3)."""
+    var = np.var(values, axis=1, ddof=1)
+    return float(np.mean(var / (reference**2 + eps)))
+
+
+def pixel_means(values: np.ndarray) -> np.ndarray:
+    """The pilot's estimate of each pixel: (pixels, 3)."""
+    return values.mean(axis=1)

@@ -1,0 +1,109 @@
+"""A path tracer that keeps three parts of the light apart: direct, caustic, other indirect.
+
+``twopass`` (:mod:`mi_twopass.integrators.twopass`) runs it as its pilot and as its "path"
+composition. It is Mitsuba's ``path`` estimator (emitter sampling and BSDF sampling with the
+power heuristic, Russian roulette from ``rr_depth``, the same ``max_depth``), built from the
+per-vertex steps of :mod:`mi_twopass.integrators.pathtrace`, with each contribution filed
+under the part of path space it belongs to (Heckbert's regular-expression notation, eye side
+on the right)::
+
+    direct     L (S*) D? (S*) E     emission seen through delta vertices, and light reaching the
+                                    first non-delta vertex along one segment (emitter sampling,
+                                    or a BSDF ray meeting an emitter)
+    caustic    L S+ D (S|D)* E      emission met by a ray that left a delta vertex after at least
+                                    one non-delta vertex: no emitter sample reaches it, only BSDF
+                                    sampling does (the paths Heckbert's rexes are made for)
+    indirect   the rest             light that reached a non-delta vertex after another one,
+                                    without a delta vertex just before the emitter
+
+The three add up to ``path``'s estimate, lane by lane; their separate variances are what
+``twopass``'s cost model reads (:mod:`mi_twopass.compose.cost`).
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from ..scene.bounds import ray_scale
+from .base import TwoPassIntegrator
+from .pathtrace import (bsdf_continue, emission_mis, emitter_sample_mis, path_start,
+                        roulette_step)
+
+
+class ComponentPathIntegrator(TwoPassIntegrator):
+    """Mitsuba's ``path`` estimator with its contributions split into direct / caustic /
+    indirect (module docstring). No prepass. Not registered as a plugin: ``twopass`` builds it.
+
+    ``sample`` returns the parts ``component`` asks for ("all": their sum, the same estimate as
+    ``path``; "direct": the direct part; "indirect": caustic + indirect)."""
+
+    PREPASS_USES_CAMERA = False
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        if self.max_depth == 0:
+            return mi.Spectrum(0.0), mi.Bool(True), []
+        direct, caustic, indirect, caustic_first = self.sample_components(scene, sampler, ray,
+                                                                          active)
+        # ``component`` splits as every integrator of the suite does (pathtrace.by_component):
+        # emission met from the first non-delta vertex is direct, delta vertices between or not
+        if self.component == "direct":
+            L = direct + caustic_first
+        elif self.component == "indirect":
+            L = caustic - caustic_first + indirect
+        else:
+            L = direct + caustic + indirect
+        return L, mi.Bool(True), []
+
+    @dr.syntax
+    def sample_components(self, scene, sampler, ray, active=True):
+        """``(direct, caustic, indirect, caustic_first)`` radiance along ``ray``, one path per
+        lane; ``caustic_first`` is the part of ``caustic`` met from the first non-delta vertex
+        (what ``component="direct"`` counts as direct)."""
+        scale = dr.opaque(mi.Float, ray_scale(scene))
+        max_depth = self.depth_bound
+        ctx = mi.BSDFContext()
+        ray, _, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
+            path_start(ray)
+        direct = mi.Spectrum(0.0)
+        caustic = mi.Spectrum(0.0)
+        indirect = mi.Spectrum(0.0)
+        caustic_first = mi.Spectrum(0.0)
+        n_implicit = mi.UInt32(0)
+        n_explicit = mi.UInt32(0)
+        active = mi.Bool(active)
+
+        while dr.hint(active, label="component_path"):
+            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
+            n_implicit += dr.select(active & (depth > 0), 1, 0)
+            Le = beta * emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            is_caustic = prev_bsdf_delta & (n_nondelta >= 1)
+            caustic += dr.select(is_caustic, Le, 0.0)
+            caustic_first += dr.select(is_caustic & (n_nondelta == 1), Le, 0.0)
+            direct += dr.select(~is_caustic & (n_nondelta <= 1), Le, 0.0)
+            indirect += dr.select(~is_caustic & (n_nondelta > 1), Le, 0.0)
+
+            active_next = active & si.is_valid() & (depth + 1 < max_depth)
+            bsdf = si.bsdf(ray)
+            smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
+                                          active_next & smooth, scale)
+            n_explicit += dr.select(cast, 1, 0)
+            Ld = beta * Ld
+            first_vertex = n_nondelta == 0
+            direct += dr.select(first_vertex, Ld, 0.0)
+            indirect += dr.select(first_vertex, 0.0, Ld)
+
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
+                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
+            depth[si.is_valid()] += 1
+            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
+                                         active_next, bs)
+
+        dr.schedule(direct, caustic, indirect, caustic_first, n_implicit, n_explicit)
+        self.count("implicit_rays", n_implicit)
+        self.count("explicit_rays", n_explicit)
+        return direct, caustic, indirect, caustic_first
+
+    def to_string(self):
+        return (f"ComponentPathIntegrator[max_depth={self.max_depth}, "
+                f"component={self.component}]")

@@ -1,0 +1,351 @@
+"""``twopass``: per scene and camera, the composition of the suite's techniques that pays.
+
+The cost model and the table of compositions are in :mod:`mi_twopass.compose.cost`, the pilot
+in :mod:`mi_twopass.compose.pilot`; this module wires them to Mitsuba's render call.
+"""
+from __future__ import annotations
+
+import time
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..compose import cost
+from ..compose.pilot import PilotSettings, choose_pixels, pilot, pixel_means, relative_variance
+from ..scene.lambertian import is_lambertian
+from .base import TwoPassIntegrator, read_choice, read_float, read_int
+from .component_path import ComponentPathIntegrator
+from .pathtrace import first_nondelta_hit
+
+AUTO = "auto"
+DEBUG_MODES = ("none", "technique")
+
+#: debug="technique": the colour of each composition where its structure serves the first
+#: non-delta vertex (grey: path traced there)
+TECHNIQUE_COLOURS = {
+    "path": (0.5, 0.5, 0.5),
+    "spike_gather": (0.9, 0.6, 0.1),
+    "radiosity_gather": (0.2, 0.4, 0.9),
+    "radiance_cache": (0.2, 0.8, 0.3),
+    "rex": (0.9, 0.2, 0.6),
+}
+
+
+class Choice:
+    """What a ``twopass`` prepass leaves for the render: the decision and the chosen
+    integrator (its structure built). A plain class: Dr.Jit would traverse a dataclass."""
+
+    def __init__(self, decision, integrator, seconds):
+        self.decision = decision
+        self.integrator = integrator
+        #: {"pilot": s, "prepasses": s}: where the twopass prepass spent its time
+        self.seconds = seconds
+
+
+class TwoPassChooser(TwoPassIntegrator):
+    r"""
+    .. _integrator-twopass:
+
+    Two-pass composition (:monosp:`twopass`)
+    -----------------------------------------
+
+    The integrator to use on a scene nobody checked: it measures the suite's techniques on
+    this scene and camera and renders with the composition that is predicted to reach the
+    lowest error for its time, building only the structures that may pay (the table of
+    compositions and the cost model: :mod:`mi_twopass.compose.cost`)::
+
+        1. pilot path trace (``pilot_pixels`` pixels × 96 samples, Mitsuba's path estimator)
+           with its light split into direct, caustic (L S+ D ...) and other indirect parts,
+           each part's relative variance measured
+        2. for each composition the forced choices allow, by its best case (path's variance
+           less the parts it serves, at path's cost, no prepass): skip it when the best case
+           cannot beat the best measured so far by 1.25×, once ``pilot_budget`` of path's
+           predicted render time is spent, or where the scene gives it nothing
+           (one emitter for spike lists, no Lambertian surface, a finite max_depth for a far
+           field); else build its prepass and pilot it on the same pixels
+        3. render with the candidate of least predicted relMSE × seconds,
+           (prepass + N·t) × (v/N + b²), N the render's samples per pixel, b its image-mean
+           bias against the path pilot
+
+    Every composition is one of the suite's estimators (or ``path``), each consistent or
+    within its own stated bias bound, so every part of path space is estimated exactly once
+    (caustics=off: path traced, not dropped). With max_depth = 0 the image is black and
+    nothing is built.
+
+    ``integrator.stats`` holds the chosen estimator's statistics and ``twopass_choice`` (the
+    composition), ``twopass_reason`` (the predicted figures that decided), ``twopass_candidates``
+    (per candidate built: prepass seconds, seconds per spp, relative variance, bias², score),
+    ``twopass_skipped`` (per composition not built: why), ``pilot_seconds`` and
+    ``prepass_seconds`` (the pilot and every prepass built, the chosen one's included).
+
+    .. pluginparameters::
+
+     * - direct
+       - |string|
+       - "auto" (default), "emitter" (Mitsuba's emitter sampling with MIS) or "spike"
+         (``spike_gather``'s spike lists).
+     * - indirect
+       - |string|
+       - "auto" (default), "path" (traced), "radiosity" (GSII far gather), "cache" (the
+         radiance cache's SH field) or "rex" (photon rexes, with caustics="rex").
+     * - caustics
+       - |string|
+       - "auto" (default), "off" (caustic paths traced by BSDF sampling) or "rex".
+     * - pilot_pixels
+       - |int|
+       - Pixels of the pilot (default: 1024; the whole film if smaller).
+     * - pilot_budget
+       - |float|
+       - No prepass is started once the pilot and the prepasses built have spent this share
+         of the time ``path`` is predicted to need for the render (default: 0.5; 0: path only,
+         unless a choice is forced).
+     * - debug
+       - |string|
+       - "none"; "technique" colours the first non-delta hit by the technique that serves it
+         (grey: path traced there; orange: spike lists; blue: radiosity; green: the cache;
+         magenta: rexes).
+     * - max_depth, rr_depth, seed, component
+       -
+       - As every mi_twopass integrator; passed to the chosen estimator.
+    """
+
+    def _read_props(self, props):
+        forced = {}
+        for key, choices in (("direct", cost.DIRECT), ("indirect", cost.INDIRECT),
+                             ("caustics", cost.CAUSTICS)):
+            value = read_choice(props, key, AUTO, (AUTO, *choices))
+            forced[key] = None if value == AUTO else value
+        self.forced = forced
+        self.allowed = cost.matching(**forced)  # a combination no row has fails at load
+        self.pilot_settings = PilotSettings(
+            pixels=read_int(props, "pilot_pixels", 1024, minimum=16, maximum=65536,
+                            why="pilot pixels: each costs 96 samples per candidate"))
+        self.pilot_budget = read_float(props, "pilot_budget", cost.PILOT_BUDGET, minimum=0.0)
+        self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
+        self._candidates = {}  # plugin name+props -> integrator, kept so prepasses are reused
+        self._render_spp = 0
+
+    def settings(self):
+        return (tuple(sorted(self.forced.items(), key=lambda kv: kv[0])), self.pilot_settings,
+                self.pilot_budget, self._render_spp)
+
+    # -- candidates -------------------------------------------------------------------------
+    def _common_props(self) -> dict:
+        return {"max_depth": self.max_depth, "rr_depth": self.rr_depth, "seed": self.seed,
+                "component": self.component}
+
+    def candidate(self, c: cost.Composition):
+        """The integrator of composition ``c`` (built once per twopass object)."""
+        key = (c.plugin, c.props)
+        if key not in self._candidates:
+            if c.plugin == "path":
+                props = mi.Properties()
+                for k, v in self._common_props().items():
+                    props[k] = v
+                self._candidates[key] = ComponentPathIntegrator(props)
+            else:
+                self._candidates[key] = mi.load_dict(
+                    {"type": c.plugin, **self._common_props(), **dict(c.props)})
+        return self._candidates[key]
+
+    @staticmethod
+    def traits(scene, max_depth) -> cost.SceneTraits:
+        lambertian = any(s.bsdf() is not None and is_lambertian(s.bsdf())
+                         for s in scene.shapes())
+        return cost.SceneTraits(emitters=len(scene.emitters()), lambertian=lambertian,
+                                max_depth=max_depth)
+
+    # -- prepass: pilot, then the structures that pay ---------------------------------------
+    def prepass(self, scene, seed):
+        sensor = self.prepass_sensor
+        spp = max(int(self._render_spp or sensor.sampler().sample_count()), 1)
+        t_start = time.perf_counter()
+        build_seconds = 0.0
+        if len(self.allowed) == 1:  # everything forced: nothing to measure
+            c = self.allowed[0]
+            integ = self.candidate(c)
+            if c.needs_prepass:
+                _, build_seconds = integ.ensure_prepass(scene, seed, sensor)
+            decision = cost.Decision(chosen=c, spp=spp)
+            decision.skipped = {"pilot": "every choice forced from XML"}
+            return Choice(decision, integ, {"pilot": 0.0, "prepasses": build_seconds})
+
+        pixels = choose_pixels(sensor, self.pilot_settings.pixels, seed)
+        film_pixels = pixels.film_pixels
+        path_row = cost.COMPOSITIONS[0]
+        path_integ = self.candidate(path_row)
+        parts_out = []
+
+        def path_estimator(scene_, sampler, ray, active):
+            d, c_, i, _ = path_integ.sample_components(scene_, sampler, ray, active)
+            parts_out.append((d, c_, i))
+            return d + c_ + i
+
+        path_run = pilot(scene, sensor, pixels, self.pilot_settings, path_estimator, seed)
+        parts = [np.concatenate([self._as_numpy(p[k], pixels, n) for p, n in
+                                 zip(parts_out, (self.pilot_settings.samples,
+                                                 self.pilot_settings.samples,
+                                                 4 * self.pilot_settings.samples))], axis=1)
+                 for k in range(3)]
+        ref = pixel_means(path_run.values)
+        variance = cost.VarianceParts(
+            total=relative_variance(path_run.values, ref),
+            direct=relative_variance(parts[0], ref), caustic=relative_variance(parts[1], ref),
+            indirect=relative_variance(parts[2], ref))
+        path_m = cost.Measured(prepass_seconds=0.0,
+                               seconds_per_spp=path_run.seconds_per_spp(film_pixels),
+                               variance=variance.total, bias2=0.0, mean_ratio=1.0)
+        runs = {}
+        measured = {}
+        decision = cost.Decision(chosen=path_row, spp=spp)
+        if path_row in self.allowed:
+            measured[path_row.name] = path_m
+            runs[path_row.name] = (path_row, path_integ, path_run)
+
+        traits = self.traits(scene, self.max_depth)
+        others = [c for c in self.allowed if c.needs_prepass]
+        for c in others:
+            decision.best_case[c.name] = cost.best_case_score(variance, path_m, c, spp)
+        best = min((m.score(spp) for m in measured.values()), default=float("inf"))
+        budget = self.pilot_budget * spp * path_m.seconds_per_spp
+        for c in sorted(others, key=lambda c: decision.best_case[c.name]):
+            why = cost.structural_reason(c, traits)
+            if why is None and c.caustics == "rex" and \
+                    variance.caustic < cost.CAUSTIC_SHARE * variance.total:
+                why = (f"caustics carry {variance.caustic / max(variance.total, 1e-30):.1%} "
+                       f"of path's variance (< {cost.CAUSTIC_SHARE:.0%})")
+            if why is None and decision.best_case[c.name] * cost.MIN_GAIN >= best:
+                why = (f"best case {decision.best_case[c.name]:.3g} (relMSE x s) cannot beat "
+                       f"{best:.3g} by {cost.MIN_GAIN}x")
+            spent = time.perf_counter() - t_start
+            integ = self.candidate(c)
+            floor = cost.prepass_floor(cost.light_paths(integ, scene), path_m, film_pixels)
+            if why is None and spent + floor > budget and measured:
+                path_s = spp * path_m.seconds_per_spp
+                why = (f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
+                       f"> {budget:.3g} s ({self.pilot_budget:g} x path's predicted "
+                       f"{path_s:.3g} s)")
+            if why is not None:
+                decision.skipped[c.name] = why
+                continue
+            try:
+                _, seconds = integ.ensure_prepass(scene, seed, sensor)
+            except (ValueError, NotImplementedError) as err:  # refused: media, ...
+                decision.skipped[c.name] = f"refused: {err}"
+                continue
+            build_seconds += seconds
+            run = pilot(scene, sensor, pixels, self.pilot_settings,
+                        lambda s_, smp, r, a, integ=integ: integ.sample(s_, smp, r, None, a)[0],
+                        seed)
+            b2, ratio = cost.bias_squared(run.values, path_run.values)
+            measured[c.name] = cost.Measured(
+                prepass_seconds=seconds,
+                seconds_per_spp=run.seconds_per_spp(film_pixels),
+                variance=relative_variance(run.values, ref), bias2=b2, mean_ratio=ratio)
+            runs[c.name] = (c, integ, run)
+            best = min(best, measured[c.name].score(spp))
+
+        if not measured:  # nothing allowed could be built: say why
+            raise ValueError("twopass: no composition allowed by the forced choices can be "
+                             "built here: " + "; ".join(f"{k}: {v}" for k, v in
+                                                       decision.skipped.items()))
+        # the variances again against every pilot's pixel means (less noise in R)
+        pooled = np.mean([pixel_means(r[2].values) for r in runs.values()], axis=0)
+        for name, (_, _, run) in runs.items():
+            measured[name].variance = relative_variance(run.values, pooled)
+        decision.measured = measured
+        name = min(measured, key=lambda n: measured[n].score(spp))
+        decision.chosen = runs[name][0]
+        pilot_seconds = time.perf_counter() - t_start - build_seconds
+        return Choice(decision, runs[name][1], {"pilot": pilot_seconds,
+                                                 "prepasses": build_seconds})
+
+    @staticmethod
+    def _as_numpy(spectrum, pixels, samples):
+        arr = np.stack([np.asarray(spectrum.x), np.asarray(spectrum.y),
+                        np.asarray(spectrum.z)], axis=-1)
+        return arr.reshape(len(pixels.index), samples, 3)
+
+    def prepass_stats(self, choice):
+        d = choice.decision
+        return {
+            "twopass_choice": d.chosen.name,
+            "twopass_reason": d.reason() if d.measured else "forced from XML",
+            "twopass_candidates": {
+                n: {"prepass_seconds": m.prepass_seconds, "seconds_per_spp": m.seconds_per_spp,
+                    "relative_variance": m.variance, "bias2": m.bias2,
+                    "mean_ratio": m.mean_ratio, "score": m.score(d.spp)}
+                for n, m in d.measured.items()},
+            "twopass_skipped": dict(d.skipped),
+            "pilot_seconds": choice.seconds["pilot"],
+        }
+
+    # -- render -----------------------------------------------------------------------------
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        if self._in_render:  # the C++ render of a debug view dispatching back
+            return TwoPassIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
+        if self.max_depth == 0:
+            return self._render_black(scene, sensor, seed, spp, develop, evaluate)
+        self._render_spp = int(spp)
+        if self.debug != "none":  # the base class's render, with sample_technique
+            return TwoPassIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
+        choice, seconds = self.ensure_prepass(scene, seed, sensor)
+        chosen = choice.integrator
+        chosen.sample_seed_offset = self.sample_seed_offset
+        image = chosen.render(scene, sensor, seed, spp, develop, evaluate)
+        stats = dict(chosen.stats)
+        stats.update(self._prepass_stats)
+        stats["prepass_seconds"] = seconds  # pilot + every prepass built (0.0 when reused)
+        stats["prepass_seconds_last_built"] = self._prepass_time
+        self.structure_stat_keys = frozenset(self._prepass_stats) | chosen.structure_stat_keys
+        self.stats = stats
+        return image
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        if self.debug == "technique":
+            return self.sample_technique(scene, sampler, ray, active)
+        return self.structure.integrator.sample(scene, sampler, ray, medium, active)
+
+    def sample_technique(self, scene, sampler, ray, active):
+        """debug="technique": the chosen composition's colour where its structure serves the
+        first non-delta vertex, grey where that vertex is path traced."""
+        choice = self.structure
+        plugin = choice.decision.chosen.plugin
+        si, _, beta, _, found = first_nondelta_hit(scene, sampler, ray, active)
+        served = found & self.serves(choice.integrator, plugin, si, found)
+        colour = mi.Color3f(*TECHNIQUE_COLOURS[plugin])
+        grey = mi.Color3f(*TECHNIQUE_COLOURS["path"])
+        return dr.select(found, dr.select(served, colour, grey), 0.0), mi.Bool(True), []
+
+    @staticmethod
+    def serves(integ, plugin, si, active):
+        """Lanes whose hit ``si`` the chosen structure serves (module table)."""
+        s = integ.structure
+        if plugin == "path" or s is None:
+            return mi.Bool(False)
+        if plugin == "radiosity_gather":
+            return s.solution.cached_at(si, active)
+        if plugin == "spike_gather":
+            from ..prepass.spike_grid import INVALID
+            listed = s.grid.list_at(si.p, active) != INVALID
+            if integ.r_thresh_rel >= 1e6:
+                return listed
+            return listed | s.solution.cached_at(si, active)
+        if plugin == "radiance_cache":
+            from ..prepass.sh_cache import cached_surface
+            return cached_surface(s.patches, s.elements, si, active)
+        from ..prepass.rex_textures import KIND_NONE, NO_SHAPE
+        shape = s.tables.shape_index(si, active)
+        kind = dr.gather(mi.UInt32, s.tables.d_kind, shape, active & (shape != NO_SHAPE))
+        return active & (shape != NO_SHAPE) & (kind != KIND_NONE)
+
+    def to_string(self):
+        chosen = self.structure.decision.chosen.name if self.structure is not None else "?"
+        return (f"TwoPassChooser[{chosen}, max_depth={self.max_depth}, "
+                f"component={self.component}]")
+
+
+mi.register_integrator("twopass", lambda props: TwoPassChooser(props))

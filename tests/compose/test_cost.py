@@ -1,0 +1,65 @@
+"""twopass's cost model (mi_twopass.compose.cost): the table, forced choices, the best case, the
+bias estimate and the score."""
+import numpy as np
+import pytest
+
+from mi_twopass.compose import cost
+
+
+def test_every_forced_combination_either_names_rows_or_fails_naming_the_choices():
+    assert [c.plugin for c in cost.matching(direct="spike")] == ["spike_gather", "spike_gather"]
+    assert [c.plugin for c in cost.matching(caustics="rex")] == ["rex"]
+    assert len(cost.matching()) == len(cost.COMPOSITIONS)
+    with pytest.raises(ValueError, match="no composition has direct='spike', indirect='cache'"):
+        cost.matching(direct="spike", indirect="cache")
+
+
+def test_best_case_removes_only_the_parts_a_technique_serves():
+    parts = cost.VarianceParts(total=1.0, direct=0.6, caustic=0.1, indirect=0.3)
+    rows = {(c.direct, c.indirect): c for c in cost.COMPOSITIONS}
+    assert parts.best_case(rows["emitter", "path"]) == pytest.approx(1.0)
+    assert parts.best_case(rows["spike", "path"]) == pytest.approx(0.4)
+    assert parts.best_case(rows["emitter", "cache"]) == pytest.approx(0.7)
+    assert parts.best_case(rows["spike", "radiosity"]) == pytest.approx(0.1)
+    assert parts.best_case(rows["emitter", "rex"]) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_structural_reasons():
+    rows = {(c.direct, c.indirect): c for c in cost.COMPOSITIONS}
+    one = cost.SceneTraits(emitters=1, lambertian=True, max_depth=-1)
+    assert "1 emitter" in cost.structural_reason(rows["spike", "path"], one)
+    glossy = cost.SceneTraits(emitters=3, lambertian=False, max_depth=-1)
+    assert "Lambertian" in cost.structural_reason(rows["emitter", "cache"], glossy)
+    assert cost.structural_reason(rows["spike", "path"], glossy) is None
+    bounded = cost.SceneTraits(emitters=3, lambertian=True, max_depth=3)
+    assert "max_depth=3" in cost.structural_reason(rows["emitter", "radiosity"], bounded)
+    assert cost.structural_reason(rows["emitter", "rex"], bounded) is None
+
+
+def test_bias_is_zero_for_pilots_of_the_same_distribution_and_found_when_large():
+    rng = np.random.default_rng(3)
+    a = rng.exponential(1.0, size=(1024, 96, 3))
+    b = rng.exponential(1.0, size=(1024, 96, 3))
+    b2, ratio = cost.bias_squared(a, b)
+    assert b2 == 0.0 and ratio == pytest.approx(1.0, abs=0.01)
+    b2, ratio = cost.bias_squared(1.1 * a, b)
+    assert ratio == pytest.approx(1.1, abs=0.01)
+    assert b2 == pytest.approx(0.01, rel=0.2)
+
+
+def test_score_is_predicted_error_times_seconds_and_prepass_amortises():
+    m = cost.Measured(prepass_seconds=2.0, seconds_per_spp=0.01, variance=0.5, bias2=1e-4,
+                      mean_ratio=1.0)
+    assert m.score(100) == pytest.approx((0.5 / 100 + 1e-4) * (2.0 + 1.0))
+    path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.01, variance=2.0, bias2=0.0,
+                         mean_ratio=1.0)
+    assert path.score(16) < m.score(16)  # a short render: the prepass does not pay
+    assert path.score(4096) > m.score(4096)  # a long one: it does
+
+
+def test_prepass_floor_counts_light_paths_at_path_cost():
+    path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.02, variance=1.0, bias2=0.0,
+                         mean_ratio=1.0)
+    # 1e6 light paths on a 100×100 film: 100 path samples per pixel's worth of paths
+    assert cost.prepass_floor(10**6, path, 10**4) == pytest.approx(
+        cost.PREPASS_FLOOR_FACTOR * 100 * 0.02)

@@ -1,0 +1,36 @@
+"""twopass's pilot (mi_twopass.compose.pilot): pixels, samples, variance and cost per sample."""
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_twopass  # noqa: F401
+from mi_twopass.compose import pilot as pl
+
+
+def test_pixels_are_distinct_and_the_whole_film_when_it_is_small(tiny_scene_file):
+    scene = mi.load_file(tiny_scene_file)
+    sensor = scene.sensors()[0]
+    all_px = pl.choose_pixels(sensor, 4096, seed=0)
+    assert all_px.film_pixels == 256 and np.array_equal(all_px.index, np.arange(256))
+    some = pl.choose_pixels(sensor, 100, seed=0)
+    assert len(np.unique(some.index)) == 100 and some.index.max() < 256
+
+
+def test_pilot_of_a_constant_estimator_has_zero_variance_and_positive_cost(tiny_scene_file):
+    scene = mi.load_file(tiny_scene_file)
+    sensor = scene.sensors()[0]
+    px = pl.choose_pixels(sensor, 64, seed=1)
+    run = pl.pilot(scene, sensor, px, pl.PilotSettings(pixels=64, samples=4),
+                   lambda s, sampler, ray, active: mi.Spectrum(0.25), seed=0)
+    assert run.values.shape == (64, 4 + 4 + 16, 3)
+    assert np.allclose(run.values, 0.25)  # box filter, unit importance weights
+    assert pl.relative_variance(run.values, pl.pixel_means(run.values)) == pytest.approx(0.0)
+    assert run.seconds_per_lane > 0
+
+
+def test_relative_variance_is_the_relmse_of_one_sample():
+    rng = np.random.default_rng(0)
+    ref = np.full((500, 3), 2.0)
+    values = ref[:, None, :] + rng.normal(0.0, 0.5, size=(500, 200, 3))
+    # s² / (R² + ε) = 0.25 / 4.01
+    assert pl.relative_variance(values, ref) == pytest.approx(0.25 / 4.01, rel=0.03)

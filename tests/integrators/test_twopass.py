@@ -1,0 +1,197 @@
+"""``twopass`` (mi_twopass.integrators.twopass) and its pilot estimator ``ComponentPathIntegrator``:
+parameters, each forced choice renders exactly what the integrator it names renders, the
+consistency of the component split with Mitsuba's ``path``, the furnace, what is built (no rex
+without caustics), stats, the debug view.
+
+Statistical tests compare block means of K independent renders with a z-test (as
+tests/test_hard_cases.py), never with a loose tolerance."""
+import os
+import sys
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_twopass  # noqa: F401
+from mi_twopass.compose import cost
+from mi_twopass.evaluation.statistics import block_z_scores
+from mi_twopass.integrators.component_path import ComponentPathIntegrator
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import hard_scenes as hs  # noqa: E402
+
+#: a pilot budget so large that every candidate the best case admits is built and piloted
+TRY_ALL = {"pilot_budget": 1e6}
+
+
+def render(scene, integrator, spp, seed=0):
+    return np.asarray(mi.render(scene, integrator=integrator, spp=spp, seed=seed))
+
+
+def component_path(**props):
+    p = mi.Properties()
+    for k, v in props.items():
+        p[k] = v
+    return ComponentPathIntegrator(p)
+
+
+# -- parameters ----------------------------------------------------------------------------
+def test_registered_and_loadable():
+    assert "twopass" in mi_twopass.integrators.registered_names()
+    integ = mi.load_dict({"type": "twopass"})
+    assert integ.forced == {"direct": None, "indirect": None, "caustics": None}
+
+
+@pytest.mark.parametrize("props, message", [
+    ({"direct": "spike", "indirect": "cache"},
+     "no composition has direct='spike', indirect='cache'"),
+    ({"caustics": "rex", "direct": "spike"}, "no composition has direct='spike', caustics='rex'"),
+    ({"direct": "lists"}, "direct='lists': expected one of auto, emitter, spike"),
+    ({"pilot_pixels": 2}, "pilot_pixels=2: must be >= 16"),
+    ({"pilot_budget": -1.0}, "pilot_budget=-1: must be >= 0")])
+def test_bad_parameters_fail_at_load_time(props, message):
+    with pytest.raises(RuntimeError, match=message):
+        mi.load_dict({"type": "twopass", **props})
+
+
+# -- forced choices ------------------------------------------------------------------------
+@pytest.mark.parametrize("row", cost.COMPOSITIONS, ids=lambda c: c.name)
+def test_each_forced_choice_renders_what_its_integrator_renders(row):
+    """Every choice forced from XML: no pilot, the stats name the composition, and the image is
+    the named integrator's, sample for sample (same seeds, same prepass)."""
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass", "direct": row.direct, "indirect": row.indirect,
+                       "caustics": row.caustics})
+    img = render(scene, tp, spp=4, seed=3)
+    assert tp.stats["twopass_choice"] == row.name
+    assert tp.stats["twopass_skipped"] == {"pilot": "every choice forced from XML"}
+    if row.plugin == "path":
+        direct = component_path()
+    else:
+        direct = mi.load_dict({"type": row.plugin, **dict(row.props)})
+    ref = render(scene, direct, spp=4, seed=3)
+    assert np.isfinite(img).all()
+    np.testing.assert_allclose(img, ref, rtol=1e-5, atol=1e-6)
+
+
+# -- the component split ---------------------------------------------------------------------
+def test_components_add_up_to_all_sample_for_sample():
+    scene = mi.load_dict(hs.glass_light())
+    all_ = render(scene, component_path(), spp=4, seed=1)
+    direct = render(scene, component_path(component="direct"), spp=4, seed=1)
+    indirect = render(scene, component_path(component="indirect"), spp=4, seed=1)
+    np.testing.assert_allclose(direct + indirect, all_, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("scene_name", ["glass_light", "objects"])
+def test_component_path_converges_to_mitsubas_path(scene_name):
+    """K = 4 independent renders of each; block z-scores of the difference, |z| < 4 (16
+    blocks: a false alarm has probability ~1e-3)."""
+    scene = hs.build(scene_name)
+    ours = [render(scene, component_path(), spp=32, seed=10 + k) for k in range(4)]
+    path = [render(scene, mi.load_dict({"type": "path"}), spp=32, seed=20 + k)
+            for k in range(4)]
+    z = block_z_scores(ours, path, block=4)
+    assert np.abs(z).max() < 4.0, z
+
+
+def test_caustic_part_is_found_behind_glass_and_zero_without_it():
+    integ = component_path()
+    for build, has_caustic in ((hs.glass_light, True), (hs.box, False)):
+        scene = mi.load_dict(build())
+        sensor = scene.sensors()[0]
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(0, 256 * 16)
+        idx = dr.arange(mi.UInt32, 256 * 16) // 16
+        pos = (mi.Point2f(mi.Float(idx % 16), mi.Float(idx // 16)) + sampler.next_2d()) / 16
+        ray, _ = sensor.sample_ray(0.0, 0.5, pos, sampler.next_2d())
+        _, caustic, _, _ = integ.sample_components(scene, sampler, ray, True)
+        total = float(np.asarray(caustic.x).sum())
+        assert (total > 0) == has_caustic, (build.__name__, total)
+
+
+# -- what is built, and why -----------------------------------------------------------------
+def test_no_rex_without_caustics_and_stats_say_why():
+    """A diffuse box: the pilot finds no caustic variance, so no rex is built (the stats give
+    the measured share), even with an unlimited pilot budget."""
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass", **TRY_ALL})
+    render(scene, tp, spp=16)
+    rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
+    assert rex_row.name not in tp.stats["twopass_candidates"]
+    assert "caustics carry 0.0%" in tp.stats["twopass_skipped"][rex_row.name]
+    spikes = [c.name for c in cost.COMPOSITIONS if c.direct == "spike"]
+    assert all("1 emitter" in tp.stats["twopass_skipped"][n] for n in spikes)
+    chosen = tp.stats["twopass_choice"]
+    cands = tp.stats["twopass_candidates"]
+    assert chosen in cands and len(cands) >= 2
+    assert min(cands, key=lambda n: cands[n]["score"]) == chosen
+    assert tp.stats["twopass_reason"].startswith(chosen)
+    assert tp.stats["prepass_seconds"] >= tp.stats["pilot_seconds"] > 0
+
+
+def test_short_render_builds_nothing_it_cannot_pay_for():
+    """1 spp of a 16×16 image: every prepass's predicted floor exceeds half of path's time."""
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass"})
+    render(scene, tp, spp=1)
+    assert tp.stats["twopass_choice"] == cost.COMPOSITIONS[0].name
+    assert list(tp.stats["twopass_candidates"]) == [cost.COMPOSITIONS[0].name]
+    assert any(r.startswith("budget") for r in tp.stats["twopass_skipped"].values())
+
+
+def test_finite_max_depth_skips_the_far_fields():
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass", "max_depth": 3, **TRY_ALL})
+    render(scene, tp, spp=16)
+    for c in cost.COMPOSITIONS:
+        if c.indirect in ("radiosity", "cache") and c.direct == "emitter":
+            assert "max_depth=3" in tp.stats["twopass_skipped"][c.name]
+
+
+def test_max_depth_zero_is_black_without_a_pilot():
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass", "max_depth": 0})
+    assert np.all(render(scene, tp, spp=2) == 0.0)
+    assert tp.structure is None
+
+
+def test_second_render_reuses_the_choice():
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass"})
+    render(scene, tp, spp=8)
+    assert tp.stats["prepass_seconds"] > 0
+    render(scene, tp, spp=8)  # same scene, seed, spp: the pilot and prepass are reused
+    assert tp.stats["prepass_seconds"] == 0.0
+
+
+def test_furnace_is_exact():
+    """ρ = 0.5, Le = 1: L = 2 everywhere. K = 4 renders with every candidate tried; the image
+    mean within 4 standard errors of 2 plus the chosen integrator's stated allowance (the
+    radiance cache: 15 % of the indirect light, tests/test_hard_cases.py; others 1e-3)."""
+    scene = mi.load_dict(hs.furnace(0.5))
+    means, chosen = [], set()
+    for k in range(4):
+        tp = mi.load_dict({"type": "twopass", **TRY_ALL})
+        means.append(render(scene, tp, spp=16, seed=k).mean())
+        chosen.add(tp.stats["twopass_choice"])
+    means = np.array(means)
+    se = max(means.std(ddof=1) / 2.0, 1e-4)
+    indirect = 2.0 - 1.0 * (1 + 0.5)
+    allowance = 0.15 * indirect if any("cache" in c for c in chosen) else 2e-3
+    assert abs(means.mean() - 2.0) < 4 * se + allowance, (means, chosen)
+
+
+def test_debug_view_colours_the_technique():
+    """Forced to the radiosity gather on the box: walls the radiosity caches are blue, the
+    rest grey (path traced), the background black."""
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass", "direct": "emitter", "indirect": "radiosity",
+                       "debug": "technique"})
+    img = render(scene, tp, spp=1)[..., :3].reshape(-1, 3)
+    blue = np.all(np.isclose(img, [0.2, 0.4, 0.9]), axis=1)
+    grey = np.all(np.isclose(img, [0.5, 0.5, 0.5]), axis=1)
+    black = np.all(img == 0, axis=1)
+    assert blue.mean() > 0.5
+    assert np.all(blue | grey | black)
