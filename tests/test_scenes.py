@@ -11,7 +11,8 @@ import mitsuba as mi
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENES_DIR = os.path.join(ROOT, "scenes_xml")
-SCENES = ["cornell_box", "many_lights", "caustic", "window_interior", "furnace", "office"]
+SCENES = ["cornell_box", "many_lights", "caustic", "window_interior", "furnace", "office",
+          "mixed_room"]
 
 
 def scene_path(name):

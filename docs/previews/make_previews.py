@@ -29,6 +29,7 @@ SCENES = {
     "window_interior": (2048, 1.5),
     "furnace": (64, -1.5),      # radiance 2 everywhere at the default albedo 0.5
     "office": (1024, 0.0),
+    "mixed_room": (1024, 0.0),
 }
 
 

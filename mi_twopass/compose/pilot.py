@@ -7,11 +7,14 @@ relative variance of one sample. Both come from a pilot: P pixels of the film dr
 candidate's ``sample`` exactly as its render would trace them.
 
 Cost per sample. A Dr.Jit call costs a fixed part (tracing the loop in Python, compiling or
-looking up the kernel, launching it) plus a part per lane. The pilot runs the same pixels three times,
-with M samples each (compiling the kernels), M again and 4M, and takes the slope of the last two:
-c = (t(4M) − t(M)) / (3·P·M) seconds per lane; a full-film sample costs c × film pixels.
+looking up the kernel, launching it) plus a part per lane. The pilot runs the same pixels with M
+samples each (compiling the kernels), then twice with 4M, and takes the faster of the two 4M
+runs per lane: c = min(t₁, t₂) / (4·P·M) seconds per lane (the fixed part included, a few per
+cent at 65536 lanes; the minimum of two keeps a hiccup of a busy machine out); a full-film
+sample costs c × film pixels. (The slope between an M and a 4M run, which leaves the fixed part
+out, moved by 6× between repeats on a loaded 2-core machine.)
 
-Relative variance. For pixel p, channel k, the sample variance s²_pk of the 6M samples, over
+Relative variance. For pixel p, channel k, the sample variance s²_pk of the 9M samples, over
 the squared pixel value R_pk of a reference shared by all candidates, with relMSE's ε
 (:data:`mi_twopass.evaluation.metrics.RELMSE_EPS`)::
 
@@ -39,7 +42,7 @@ _SALT_PILOT = 0x5117
 @dataclass(frozen=True)
 class PilotSettings:
     """Pixels drawn from the film and samples per pixel of the first of the two runs (the
-    second takes 4× as many). Defaults: 1024 pixels × (16 + 16 + 64) samples."""
+    two timed runs take 4× as many). Defaults: 1024 pixels × (16 + 64 + 64) samples."""
 
     pixels: int = 1024
     samples: int = 16
@@ -99,8 +102,8 @@ def run_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, see
 
 @dataclass
 class PilotRun:
-    """One candidate's pilot: its samples (pixels, samples, 3), the seconds per lane of the
-    slope and of the larger run (an upper bound), and the lanes run."""
+    """One candidate's pilot: its samples (pixels, samples, 3), its seconds per lane (module
+    docstring), the seconds of the timed runs and the lanes run."""
 
     values: np.ndarray
     seconds_per_lane: float
@@ -113,18 +116,15 @@ class PilotRun:
 
 
 def pilot(scene, sensor, pixels: PilotPixels, settings: PilotSettings, estimator, seed: int):
-    """Run ``estimator`` with M then 4M samples per pixel (see the module docstring) →
+    """Run ``estimator`` with M, 4M and 4M samples per pixel (see the module docstring) →
     :class:`PilotRun`."""
     m = settings.samples
     v0, _ = run_samples(scene, sensor, pixels, m, estimator, seed)  # compiles the kernels
-    v1, t1 = run_samples(scene, sensor, pixels, m, estimator, seed + 1)
+    v1, t1 = run_samples(scene, sensor, pixels, 4 * m, estimator, seed + 1)
     v2, t2 = run_samples(scene, sensor, pixels, 4 * m, estimator, seed + 2)
-    lanes = len(pixels.index) * m
-    slope = (t2 - t1) / (3 * lanes)
-    # a slope below a tenth of the big run's mean cost per lane is timer noise
-    per_lane = max(slope, 0.1 * t2 / (4 * lanes))
-    return PilotRun(values=np.concatenate([v0, v1, v2], axis=1), seconds_per_lane=per_lane,
-                    seconds=t1 + t2, lanes=6 * lanes)
+    lanes = len(pixels.index) * 4 * m
+    return PilotRun(values=np.concatenate([v0, v1, v2], axis=1),
+                    seconds_per_lane=min(t1, t2) / lanes, seconds=t1 + t2, lanes=lanes * 9 // 4)
 
 
 def relative_variance(values: np.ndarray, reference: np.ndarray, eps: float = RELMSE_EPS):

@@ -38,7 +38,8 @@ from .reference import reference_image
 #: what ``check`` runs when no integrators are named: ``path`` first, at the same spp, the
 #: noise an unbiased estimator leaves in both numbers (an integrator's row OUT where ``path``'s
 #: is OUT too says the bounds are noise-limited at that spp, not that the integrator is biased)
-DEFAULT_INTEGRATORS = ("path", "radiosity_gather", "spike_gather", "rex", "radiance_cache")
+DEFAULT_INTEGRATORS = ("path", "radiosity_gather", "spike_gather", "rex", "radiance_cache",
+                       "twopass")
 DEFAULT_SPP = 64
 DEFAULT_REF_SPP = 1024
 #: block side in pixels of the block relMSE

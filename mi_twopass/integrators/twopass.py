@@ -19,16 +19,17 @@ from .component_path import ComponentPathIntegrator
 from .pathtrace import first_nondelta_hit
 
 AUTO = "auto"
-DEBUG_MODES = ("none", "technique")
+DEBUG_MODES = ("none", "direct_technique", "indirect_technique")
 
-#: debug="technique": the colour of each composition where its structure serves the first
-#: non-delta vertex (grey: path traced there)
+#: debug="direct_technique" / "indirect_technique": the colour of the structure that serves the
+#: direct / the indirect light at the first non-delta vertex (grey: none, emitter sampling or
+#: path tracing there)
 TECHNIQUE_COLOURS = {
     "path": (0.5, 0.5, 0.5),
-    "spike_gather": (0.9, 0.6, 0.1),
-    "radiosity_gather": (0.2, 0.4, 0.9),
-    "radiance_cache": (0.2, 0.8, 0.3),
-    "rex": (0.9, 0.2, 0.6),
+    "spike": (0.9, 0.45, 0.0),       # a spike list in the vertex's cell (direct light)
+    "radiosity": (0.0, 0.35, 0.9),   # the radiosity far field caches the surface
+    "cache": (0.0, 0.75, 0.2),       # the radiance cache reads the surface
+    "rex": (0.85, 0.0, 0.75),        # the surface carries rexes
 }
 
 
@@ -55,7 +56,7 @@ class TwoPassChooser(TwoPassIntegrator):
     lowest error for its time, building only the structures that may pay (the table of
     compositions and the cost model: :mod:`mi_twopass.compose.cost`)::
 
-        1. pilot path trace (``pilot_pixels`` pixels × 96 samples, Mitsuba's path estimator)
+        1. pilot path trace (``pilot_pixels`` pixels × 144 samples, Mitsuba's path estimator)
            with its light split into direct, caustic (L S+ D ...) and other indirect parts,
            each part's relative variance measured
         2. for each composition the forced choices allow, by its best case (path's variance
@@ -102,9 +103,10 @@ class TwoPassChooser(TwoPassIntegrator):
          unless a choice is forced).
      * - debug
        - |string|
-       - "none"; "technique" colours the first non-delta hit by the technique that serves it
-         (grey: path traced there; orange: spike lists; blue: radiosity; green: the cache;
-         magenta: rexes).
+       - "none"; "direct_technique" colours the first non-delta hit orange where a spike list
+         serves its direct light (grey: emitter sampling); "indirect_technique" colours it by
+         the structure that serves its indirect light (blue: the radiosity far field; green:
+         the radiance cache; magenta: rexes; grey: path traced).
      * - max_depth, rr_depth, seed, component
        -
        - As every mi_twopass integrator; passed to the chosen estimator.
@@ -120,7 +122,7 @@ class TwoPassChooser(TwoPassIntegrator):
         self.allowed = cost.matching(**forced)  # a combination no row has fails at load
         self.pilot_settings = PilotSettings(
             pixels=read_int(props, "pilot_pixels", 1024, minimum=16, maximum=65536,
-                            why="pilot pixels: each costs 96 samples per candidate"))
+                            why="pilot pixels: each costs 144 samples per candidate"))
         self.pilot_budget = read_float(props, "pilot_budget", cost.PILOT_BUDGET, minimum=0.0)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self._candidates = {}  # plugin name+props -> integrator, kept so prepasses are reused
@@ -185,7 +187,7 @@ class TwoPassChooser(TwoPassIntegrator):
         path_run = pilot(scene, sensor, pixels, self.pilot_settings, path_estimator, seed)
         parts = [np.concatenate([self._as_numpy(p[k], pixels, n) for p, n in
                                  zip(parts_out, (self.pilot_settings.samples,
-                                                 self.pilot_settings.samples,
+                                                 4 * self.pilot_settings.samples,
                                                  4 * self.pilot_settings.samples))], axis=1)
                  for k in range(3)]
         ref = pixel_means(path_run.values)
@@ -305,42 +307,45 @@ class TwoPassChooser(TwoPassIntegrator):
         return image
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
-        if self.debug == "technique":
+        if self.debug != "none":
             return self.sample_technique(scene, sampler, ray, active)
         return self.structure.integrator.sample(scene, sampler, ray, medium, active)
 
     def sample_technique(self, scene, sampler, ray, active):
-        """debug="technique": the chosen composition's colour where its structure serves the
-        first non-delta vertex, grey where that vertex is path traced."""
+        """The debug views: at the first non-delta vertex, the colour of the structure that
+        serves its direct ("direct_technique") or indirect ("indirect_technique") light
+        (:data:`TECHNIQUE_COLOURS`), grey where none does."""
         choice = self.structure
-        plugin = choice.decision.chosen.plugin
-        si, _, beta, _, found = first_nondelta_hit(scene, sampler, ray, active)
-        served = found & self.serves(choice.integrator, plugin, si, found)
-        colour = mi.Color3f(*TECHNIQUE_COLOURS[plugin])
-        grey = mi.Color3f(*TECHNIQUE_COLOURS["path"])
-        return dr.select(found, dr.select(served, colour, grey), 0.0), mi.Bool(True), []
+        si, _, _, _, found = first_nondelta_hit(scene, sampler, ray, active)
+        colour = mi.Color3f(*TECHNIQUE_COLOURS["path"])
+        parts = self.served_parts(choice.integrator, choice.decision.chosen, si, found)
+        wanted = ("spike",) if self.debug == "direct_technique" else ("radiosity", "cache", "rex")
+        for part in wanted:
+            if part in parts:
+                colour = dr.select(parts[part], mi.Color3f(*TECHNIQUE_COLOURS[part]), colour)
+        return dr.select(found, colour, 0.0), mi.Bool(True), []
 
     @staticmethod
-    def serves(integ, plugin, si, active):
-        """Lanes whose hit ``si`` the chosen structure serves (module table)."""
+    def served_parts(integ, c, si, active) -> dict:
+        """{structure: lanes whose hit ``si`` it serves} for composition ``c``."""
         s = integ.structure
-        if plugin == "path" or s is None:
-            return mi.Bool(False)
-        if plugin == "radiosity_gather":
-            return s.solution.cached_at(si, active)
-        if plugin == "spike_gather":
+        parts = {}
+        if s is None:
+            return parts
+        if c.direct == "spike":
             from ..prepass.spike_grid import INVALID
-            listed = s.grid.list_at(si.p, active) != INVALID
-            if integ.r_thresh_rel >= 1e6:
-                return listed
-            return listed | s.solution.cached_at(si, active)
-        if plugin == "radiance_cache":
+            parts["spike"] = active & (s.grid.list_at(si.p, active) != INVALID)
+        if c.indirect == "radiosity":
+            parts["radiosity"] = active & s.solution.cached_at(si, active)
+        if c.indirect == "cache":
             from ..prepass.sh_cache import cached_surface
-            return cached_surface(s.patches, s.elements, si, active)
-        from ..prepass.rex_textures import KIND_NONE, NO_SHAPE
-        shape = s.tables.shape_index(si, active)
-        kind = dr.gather(mi.UInt32, s.tables.d_kind, shape, active & (shape != NO_SHAPE))
-        return active & (shape != NO_SHAPE) & (kind != KIND_NONE)
+            parts["cache"] = active & cached_surface(s.patches, s.elements, si, active)
+        if c.caustics == "rex":
+            from ..prepass.rex_textures import KIND_NONE, NO_SHAPE
+            shape = s.tables.shape_index(si, active)
+            kind = dr.gather(mi.UInt32, s.tables.d_kind, shape, active & (shape != NO_SHAPE))
+            parts["rex"] = active & (shape != NO_SHAPE) & (kind != KIND_NONE)
+        return parts
 
     def to_string(self):
         chosen = self.structure.decision.chosen.name if self.structure is not None else "?"

@@ -22,7 +22,7 @@ def test_pilot_of_a_constant_estimator_has_zero_variance_and_positive_cost(tiny_
     px = pl.choose_pixels(sensor, 64, seed=1)
     run = pl.pilot(scene, sensor, px, pl.PilotSettings(pixels=64, samples=4),
                    lambda s, sampler, ray, active: mi.Spectrum(0.25), seed=0)
-    assert run.values.shape == (64, 4 + 4 + 16, 3)
+    assert run.values.shape == (64, 4 + 16 + 16, 3)
     assert np.allclose(run.values, 0.25)  # box filter, unit importance weights
     assert pl.relative_variance(run.values, pl.pixel_means(run.values)) == pytest.approx(0.0)
     assert run.seconds_per_lane > 0

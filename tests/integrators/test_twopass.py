@@ -188,10 +188,25 @@ def test_debug_view_colours_the_technique():
     rest grey (path traced), the background black."""
     scene = mi.load_dict(hs.box())
     tp = mi.load_dict({"type": "twopass", "direct": "emitter", "indirect": "radiosity",
-                       "debug": "technique"})
+                       "debug": "indirect_technique"})
     img = render(scene, tp, spp=1)[..., :3].reshape(-1, 3)
-    blue = np.all(np.isclose(img, [0.2, 0.4, 0.9]), axis=1)
+    blue = np.all(np.isclose(img, [0.0, 0.35, 0.9]), axis=1)
     grey = np.all(np.isclose(img, [0.5, 0.5, 0.5]), axis=1)
     black = np.all(img == 0, axis=1)
     assert blue.mean() > 0.5
     assert np.all(blue | grey | black)
+
+
+def test_direct_debug_view_shows_spike_lists_on_a_scene_with_many_lights():
+    """Forced to spike lists on the mixed room (26 lamps, a sun and a sky): orange where a cell
+    has a list, grey elsewhere, black where the camera sees no surface (the window)."""
+    scene = mi.load_file(os.path.join(hs.__file__.rsplit("tests", 1)[0], "scenes_xml",
+                                      "mixed_room.xml"), res=16)
+    tp = mi.load_dict({"type": "twopass", "direct": "spike", "indirect": "path",
+                       "debug": "direct_technique"})
+    img = render(scene, tp, spp=1)[..., :3].reshape(-1, 3)
+    orange = np.all(np.isclose(img, [0.9, 0.45, 0.0]), axis=1)
+    grey = np.all(np.isclose(img, [0.5, 0.5, 0.5]), axis=1)
+    black = np.all(img == 0, axis=1)
+    assert orange.mean() > 0.5
+    assert np.all(orange | grey | black)
