@@ -141,11 +141,16 @@ def summarise(curves: dict, baseline: str = "path", target=TARGET_RELMSE) -> Non
 
 def run_compare(scene_path, integrators, budget: float, params: dict | None = None,
                 ref_spp: int = DEFAULT_REFERENCE_SPP, seed: int = 0, max_spp: int = 1 << 16,
-                log=print) -> dict:
-    """Run the harness; returns {label: Curve} with summaries filled."""
+                log=print, film_res: int | None = None, on_curve=None) -> dict:
+    """Run the harness; returns {label: Curve} with summaries filled.
+
+    ``film_res``: the film's longer side in pixels for scene and reference (see
+    :func:`~mi_twopass.scenefile.load_scene`; for scenes without a ``$res`` parameter).
+    ``on_curve(spec, curve, image)``: called once per integrator when its points are done,
+    ``image`` being its render at the largest spp (before the summaries are filled)."""
     params = dict(params or {})
-    reference = reference_image(scene_path, params, spp=ref_spp, verbose=True)
-    scene = load_scene(scene_path, **params)
+    reference = reference_image(scene_path, params, spp=ref_spp, verbose=True, film_res=film_res)
+    scene = load_scene(scene_path, film_res=film_res, **params)
     curves = {}
     for spec in integrators:
         timed_render(scene, spec, 1, seed + 999_983)  # warm-up: compile kernels, untimed
@@ -161,6 +166,8 @@ def run_compare(scene_path, integrators, budget: float, params: dict | None = No
                 break
             spp *= 2
         curves[spec] = Curve(spec, points)
+        if on_curve is not None:
+            on_curve(spec, curves[spec], image)
     summarise(curves, baseline=next((s for s in integrators if s.split(":")[0] == "path"), "path"))
     return curves
 
