@@ -1,10 +1,12 @@
-"""Command line: ``python -m mi_twopass render | compare | check | demo``.
+"""Command line: ``python -m mi_twopass render | compare | check | bench | demo``.
 
     python -m mi_twopass render SCENE.xml -o out.exr [--integrator T] [-D key=value] [--spp N]
                                 [--variant V] [--seed S] [--reference]
     python -m mi_twopass compare SCENE.xml --integrators path,radiosity_gather --budget 10
     python -m mi_twopass check SCENE.xml [--integrators a,b] [--spp 64] [--res PX]
                                [--ref-spp N] [-D key=value] [--json PATH]
+    python -m mi_twopass bench [SCENE.xml ...] [--corpus] [--integrators a,b] [--budget S]
+                               [--res PX] [-D key=value] [--ref-spp N] [-o benchmarks]
     python -m mi_twopass demo
 
 A mistake (a missing or malformed scene, an unknown integrator or parameter, a bad option)
@@ -81,6 +83,35 @@ def build_parser():
                         "without a $res parameter)")
     k.add_argument("--ref-spp", type=int, default=None, help="reference spp (default 1024)")
     k.add_argument("--json", default=None, metavar="PATH", help="also write the report as JSON")
+
+    b = sub.add_parser(
+        "bench", help="speed-vs-error curves of every integrator on every scene, as one "
+                      "report (results.md, plots, image strips, bench.json)",
+        description="Run the speed-vs-error harness over scenes x integrators and write "
+                    "results.md, bench.json, <scene>.json, <scene>.png and <scene>_images.png "
+                    "into the output folder (mi_twopass/evaluation/bench.py). Run time: each "
+                    "(scene, integrator) at most its budget + about 4 s (warm-up, metrics), "
+                    "plus the references when not cached (about 125 s for the six corpus "
+                    "scenes at 128 px, 4096 spp, on 2 cores); the default run is "
+                    "6 scenes x 6 integrators x (30 + 4) s + 125 s = 1349 s, about 23 min.")
+    b.add_argument("scenes", nargs="*", metavar="SCENE.xml",
+                   help="scenes to run (default: every scenes_xml/*.xml)")
+    b.add_argument("--corpus", action="store_true",
+                   help="also run every scenes_xml/*.xml when scenes are given")
+    b.add_argument("--integrators", default=None,
+                   help="comma-separated integrator specs NAME[:key=value...] (default: path "
+                        "and every integrator of the suite; path is always added: the baseline)")
+    b.add_argument("--budget", type=float, default=None, metavar="SECONDS",
+                   help="seconds per integrator per scene (default 30)")
+    b.add_argument("--res", type=int, default=None, metavar="PX",
+                   help="film size: -D res=PX where the scene has $res (a -D res wins), else "
+                        "the film's longer side (default 128)")
+    b.add_argument("-D", dest="defines", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene parameter ($KEY in the XML), for every scene")
+    b.add_argument("--ref-spp", type=int, default=None, help="reference spp (default 4096)")
+    b.add_argument("-o", "--output-dir", default=None, help="output folder (default benchmarks/)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--variant", default=None, help="Mitsuba variant (default llvm_ad_rgb)")
 
     d = sub.add_parser("demo", help="render the demo scene and print time and relMSE")
     d.add_argument("--integrator", default=DEMO_INTEGRATOR)
@@ -326,8 +357,47 @@ def check_command(args, out=print):
     return result
 
 
+def bench_command(args, out=print):
+    """``bench``: check the command line, then :func:`mi_twopass.evaluation.bench.run_bench`."""
+    _setup(args.variant)
+    from .evaluation import bench
+    from .scenefile import SceneFileError, parse_defines
+
+    budget = bench.DEFAULT_BUDGET if args.budget is None else args.budget
+    res = bench.DEFAULT_RES if args.res is None else args.res
+    out_dir = args.output_dir or bench.DEFAULT_OUTPUT_DIR
+    if budget <= 0:
+        raise CLIError(f"--budget {args.budget}: must be > 0 seconds")
+    for option, value in (("--res", res), ("--ref-spp", args.ref_spp)):
+        if value is not None and value < 1:
+            raise CLIError(f"{option} {value}: must be >= 1")
+    scenes = list(args.scenes)
+    if not scenes or args.corpus:
+        scenes += bench.corpus_scenes()
+    seen, unique = set(), []
+    for path in scenes:
+        if os.path.abspath(path) not in seen:
+            seen.add(os.path.abspath(path))
+            unique.append(path)
+    if not unique:
+        raise CLIError(f"no scenes: none given and none in {bench.CORPUS_DIR}")
+    for path in unique:
+        if not os.path.isfile(path):
+            raise SceneFileError(f"scene file not found: {path}")
+        bench.has_res_parameter(path)  # malformed XML: an error now, not after an hour
+    params = parse_defines(args.defines)
+    specs = _specs(args.integrators or ",".join(bench.suite_integrators()), "--integrators")
+    if not any(s.split(":")[0] == "path" for s in specs):
+        specs.insert(0, "path")  # the baseline is always measured in the same run
+    _make_folder(os.path.join(out_dir, "results.md"), "-o")
+    return bench.run_bench(unique, specs, budget=budget, res=res, params=params,
+                           ref_spp=_ref_spp(args), seed=args.seed, out_dir=out_dir,
+                           argv=getattr(args, "argv", ()), log=out)
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     from .scenefile import SceneFileError
 
     try:
@@ -338,6 +408,8 @@ def main(argv=None):
             compare_command(args)
         elif args.command == "check":
             check_command(args)
+        elif args.command == "bench":
+            bench_command(args)
         elif args.command == "demo":
             render_command(DEMO_SCENE, args.output, args.integrator, args.spp, ["res=64"],
                            reference=True, ref_spp=1024)

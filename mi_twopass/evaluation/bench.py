@@ -1,0 +1,512 @@
+"""``python -m mi_twopass bench``: the speed-vs-error harness over scenes × integrators, as one
+report a person reads.
+
+For every scene and integrator :func:`mi_twopass.evaluation.harness.run_compare` renders at
+doubling spp until the time budget is spent (each point with a fresh integrator, its prepass
+timed; ``path`` is always measured, it is the baseline). Written into the output folder:
+
+* ``bench.json``: machine, date, command, variant, versions, and per scene its curves and table
+  rows; ``<scene>.json`` beside it holds the same curves in ``compare``'s format;
+* ``<scene>.png``: relMSE against time, log-log, every integrator on one plot;
+* ``<scene>_images.png``: the reference, and per integrator its image at its largest spp with
+  its FLIP error map beneath;
+* ``results.md``: one Markdown table over all scenes (columns: :data:`COLUMNS`);
+* ``bench.log``: every point as the harness logged it.
+
+Run time. An integrator costs at most its budget (the harness stops before a point that, at
+about twice the last, would overrun it; it usually spends 60-90 % of it) plus an untimed 1-spp
+warm-up and the error metrics, :data:`OVERHEAD_SECONDS` (4 s) together. References are rendered once
+and cached (``$MI_TWOPASS_CACHE``, else ``.cache/references``): ``path`` at 4096 spp and 128²
+took 12-35 s per corpus scene on a 2-core AMD EPYC, :data:`REFERENCE_SECONDS` (125 s) for
+the six. Default run, 6 scenes × 6 integrators, budget 30 s, references not cached:
+36 × (30 + 4) s + 125 s = 1349 s ≈ 22.5 min (< 30 min; :func:`estimate_seconds`); the budget
+is wall time, so a busier machine lengthens only the references and warm-ups.
+"""
+from __future__ import annotations
+
+import datetime
+import glob
+import json
+import math
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import textwrap
+import time
+import traceback
+import xml.etree.ElementTree as ET
+from dataclasses import asdict
+
+import numpy as np
+
+from . import harness
+from .images import srgb_tonemap
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+#: the corpus: every scene of this folder, by default
+CORPUS_DIR = os.path.join(ROOT, "scenes_xml")
+#: seconds per integrator per scene (see the module docstring for the arithmetic)
+DEFAULT_BUDGET = 30.0
+#: the film's size in pixels (``-D res=PX``, or the longer side for scenes without ``$res``)
+DEFAULT_RES = 128
+DEFAULT_OUTPUT_DIR = "benchmarks"
+#: per (scene, integrator), beyond its budget: the untimed 1-spp warm-up (prepass included:
+#: ≤ 2 s measured at 128², plus compiling kernels not yet cached) and relMSE + FLIP per point
+#: (0.06 s at 128² × at most 17 points)
+OVERHEAD_SECONDS = 4.0
+#: the six corpus references, path at 4096 spp at 128² on a 2-core AMD EPYC: cornell_box 14,
+#: office 35, window_interior 24, many_lights 24, furnace 16, caustic 12 s
+REFERENCE_SECONDS = 125.0
+#: results.md's columns, in order
+COLUMNS = ("scene", "integrator", "t(relMSE 0.01) s", "speed-up vs path", "equal-time ratio",
+           "equal-spp ratio", "relMSE @ max spp", "prepass share", "rays / viewing ray",
+           "twopass chose")
+
+
+def suite_integrators() -> list:
+    """``path`` and every integrator of the suite (:data:`mi_twopass.integrators.PLUGINS`)."""
+    from ..integrators import PLUGINS
+
+    return ["path", *PLUGINS]
+
+
+def corpus_scenes() -> list:
+    """The scenes of :data:`CORPUS_DIR` (``scenes_xml/*.xml``), sorted."""
+    return sorted(glob.glob(os.path.join(CORPUS_DIR, "*.xml")))
+
+
+def estimate_seconds(n_scenes: int, n_integrators: int, budget: float,
+                     reference_seconds: float = REFERENCE_SECONDS) -> float:
+    """Upper estimate of a bench's wall time: every (scene, integrator) its budget plus
+    :data:`OVERHEAD_SECONDS`, plus the references when they are not cached."""
+    return n_scenes * n_integrators * (budget + OVERHEAD_SECONDS) + reference_seconds
+
+
+def scene_names(paths) -> list:
+    """A file-name-safe name per scene: the file's stem, or ``<folder>_<stem>`` where two
+    scenes share a stem (``../shared/scenes/*/scene.xml``)."""
+    stems = [os.path.splitext(os.path.basename(p))[0] for p in paths]
+    names = []
+    for p, stem in zip(paths, stems):
+        if stems.count(stem) > 1:
+            stem = f"{os.path.basename(os.path.dirname(os.path.abspath(p)))}_{stem}"
+        names.append("".join(c if c.isalnum() or c in "-_." else "_" for c in stem))
+    return names
+
+
+def has_res_parameter(scene_path) -> bool:
+    """Whether the scene declares ``<default name="res" .../>`` (then ``--res`` is passed as
+    ``-D res=PX``; otherwise it sets the film's longer side)."""
+    from ..scenefile import SceneFileError
+
+    try:
+        root = ET.parse(scene_path).getroot()
+    except ET.ParseError as e:
+        raise SceneFileError(f"{scene_path}: malformed XML: {e}") from e
+    return any(el.get("name") == "res" for el in root.iter("default"))
+
+
+def machine_info() -> dict:
+    """CPU model (``/proc/cpuinfo``), logical cores, cores this process may use, Dr.Jit's
+    thread count, OS and Python."""
+    import drjit as dr
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    threads = dr.thread_count() if hasattr(dr, "thread_count") else None
+    return {"cpu": cpu, "cores": os.cpu_count(), "usable_cores": usable,
+            "drjit_threads": threads, "os": platform.platform(),
+            "python": platform.python_version()}
+
+
+def software_info() -> dict:
+    """Variant, Mitsuba and Dr.Jit versions, and the git commit of this checkout (``+dirty``
+    when it has uncommitted changes; None outside git)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    commit = None
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
+                                text=True, timeout=10).stdout.strip() or None
+        if commit and subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                                     cwd=ROOT, capture_output=True, text=True,
+                                     timeout=10).stdout.strip():
+            commit += "+dirty"
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {"variant": mi.variant(), "mitsuba": mi.__version__, "drjit": dr.__version__,
+            "git_commit": commit}
+
+
+def command_line(argv) -> str:
+    """The command as typed: ``python -m mi_twopass`` and the arguments, shell-quoted."""
+    return "python -m mi_twopass " + shlex.join(list(argv))
+
+
+# -- the table's numbers -----------------------------------------------------------------------
+
+def path_relmse_at_spp(path_points, spp: int):
+    """(relMSE of ``path`` at ``spp``, extrapolated?): log-log interpolation between path's
+    points; beyond them path's nearest point scaled by its spp / ``spp`` (an unbiased
+    estimator's relMSE falls as 1/spp), marked extrapolated. (None, False) without points."""
+    pts = [p for p in path_points if p.relmse > 0]
+    if not pts:
+        return None, False
+    for p in pts:
+        if p.spp == spp:
+            return p.relmse, False
+    value = harness._loglog_interp([p.spp for p in pts], [p.relmse for p in pts], spp)
+    if value is not None:
+        return value, False
+    end = pts[-1] if spp > pts[-1].spp else pts[0]
+    return end.relmse * end.spp / spp, True
+
+
+def equal_spp_ratio(path_points, points):
+    """(path's relMSE over the method's at the method's largest spp, path interpolated there;
+    extrapolated?) — per-sample quality, free of either implementation's speed."""
+    if not points or points[-1].relmse <= 0:
+        return None, False
+    base, extrapolated = path_relmse_at_spp(path_points, points[-1].spp)
+    return (None if base is None else base / points[-1].relmse), extrapolated
+
+
+def prepass_share(point):
+    """The prepass's share of the point's time (``prepass_seconds`` / seconds); None when the
+    integrator reports no prepass (Mitsuba's ``path``)."""
+    pre = point.stats.get("prepass_seconds")
+    if pre is None or point.seconds <= 0:
+        return None
+    return float(pre) / point.seconds
+
+
+def rays_per_viewing_ray(point):
+    """(implicit + explicit + viewing rays) / viewing rays of the point's render; None when
+    the integrator does not count them."""
+    s = point.stats
+    if not all(k in s for k in ("implicit_rays", "explicit_rays", "viewing_rays")):
+        return None
+    if not s["viewing_rays"]:
+        return None
+    return (s["implicit_rays"] + s["explicit_rays"] + s["viewing_rays"]) / s["viewing_rays"]
+
+
+def table_row(scene_label: str, curve, path_curve) -> dict:
+    """One row of results.md (raw numbers, None where not measured) from a summarised curve and
+    path's curve of the same scene."""
+    s = curve.summary
+    last = curve.points[-1]
+    ratio, extrapolated = equal_spp_ratio(path_curve.points if path_curve else [], curve.points)
+    return {
+        "scene": scene_label, "integrator": curve.label,
+        "time_to_target": s.get("time_to_target"),
+        "speedup": s.get("speedup_to_target"),
+        "equal_time_ratio": s.get("equal_time_ratio"),
+        "equal_spp_ratio": ratio, "equal_spp_extrapolated": extrapolated,
+        "final_relmse": last.relmse, "final_spp": last.spp, "final_seconds": last.seconds,
+        "prepass_share": prepass_share(last),
+        "rays_per_viewing_ray": rays_per_viewing_ray(last),
+        "twopass_choice": last.stats.get("twopass_choice"),
+        "failed": None,
+    }
+
+
+def failed_row(scene_label: str, spec: str, why: str) -> dict:
+    """A row for an integrator that refused the scene or failed: only ``failed`` is set."""
+    row = {k: None for k in ("time_to_target", "speedup", "equal_time_ratio", "equal_spp_ratio",
+                             "final_relmse", "final_spp", "final_seconds", "prepass_share",
+                             "rays_per_viewing_ray", "twopass_choice")}
+    row.update(scene=scene_label, integrator=spec, equal_spp_extrapolated=False, failed=why)
+    return row
+
+
+def _num(v, fmt) -> str:
+    return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+
+def format_row(row: dict) -> str:
+    """One Markdown table line for :func:`table_row`'s dict."""
+    if row["failed"]:
+        cells = [row["scene"], f"`{row['integrator']}`", f"{row['failed']}"] + \
+            ["—"] * (len(COLUMNS) - 3)
+        return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+    tte = row["time_to_target"]
+    spp_ratio = _num(row["equal_spp_ratio"], ".2f")
+    if row["equal_spp_extrapolated"] and row["equal_spp_ratio"] is not None:
+        spp_ratio = "≈" + spp_ratio
+    share = row["prepass_share"]
+    cells = [
+        row["scene"], f"`{row['integrator']}`",
+        "not reached" if tte is None else f"{tte:.3g}",
+        _num(row["speedup"], ".2f"),
+        _num(row["equal_time_ratio"], ".2f"),
+        spp_ratio,
+        f"{row['final_relmse']:.2e} ({row['final_spp']} spp)",
+        "—" if share is None else f"{100 * share:.0f} %",
+        _num(row["rays_per_viewing_ray"], ".2f"),
+        row["twopass_choice"] or "",
+    ]
+    return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+
+
+def format_results(rows, header: str) -> str:
+    """results.md: the header line, one table over all rows, and what each column means."""
+    lines = [header, "",
+             "| " + " | ".join(COLUMNS) + " |",
+             "| " + " | ".join("---" for _ in COLUMNS) + " |"]
+    lines += [format_row(r) for r in rows]
+    lines += [
+        "",
+        "- **t(relMSE 0.01)**: seconds (prepass included) to reach relMSE 0.01, log-log "
+        "interpolated between the bracketing points; *not reached* within the budget.",
+        "- **speed-up vs path**: path's t(relMSE 0.01) over the integrator's (— where either "
+        "was not reached).",
+        "- **equal-time ratio**: path's relMSE at the integrator's time (interpolated, at its "
+        "last point inside path's range) over the integrator's; > 1: better than path.",
+        "- **equal-spp ratio**: path's relMSE at the integrator's largest spp (interpolated; ≈: "
+        "extrapolated as 1/spp from path's nearest point) over the integrator's.",
+        "- **relMSE @ max spp**: error at the largest spp reached, an upper bound of the bias "
+        "floor.",
+        "- **prepass share**: prepass seconds over the point's seconds at the largest spp.",
+        "- **rays / viewing ray**: (implicit + explicit + viewing rays) / viewing rays at the "
+        "largest spp; — where the integrator does not count them (Mitsuba's path).",
+        "- **twopass chose**: the composition twopass rendered with at the largest spp.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+# -- images ------------------------------------------------------------------------------------
+
+def flip_map(image, reference) -> np.ndarray:
+    """FLIP error map (H, W) in [0, 1] of ``image`` against ``reference`` (HDR-FLIP, inputs
+    prepared as :func:`mi_twopass.evaluation.metrics.flip` prepares them)."""
+    import flip_evaluator
+
+    def prep(x):
+        x = np.asarray(x, dtype=np.float64)[..., :3]
+        return np.nan_to_num(np.maximum(x, 0), nan=0.0, posinf=0.0).astype(np.float32)
+
+    error, _, _ = flip_evaluator.evaluate(prep(reference), prep(image), "HDR", applyMagma=False)
+    return np.asarray(error, dtype=np.float32).reshape(error.shape[0], error.shape[1])
+
+
+def auto_exposure(reference) -> float:
+    """Stops that put the reference's 95th-percentile channel value at 0.8, in half stops
+    within ±6 (0 for a black reference): one exposure for every tile of a scene's strip."""
+    ref = np.nan_to_num(np.asarray(reference, dtype=np.float64))
+    p = float(np.percentile(ref, 95)) if ref.size else 0.0
+    if p <= 0:
+        return 0.0
+    return float(np.clip(round(2 * math.log2(0.8 / p)) / 2, -6, 6))
+
+
+def write_image_strip(path, reference, ref_label: str, tiles, title: str = "") -> None:
+    """The reference, then per integrator its image with its FLIP map beneath.
+
+    ``tiles``: list of (label, image or None, caption); a None image (refused, failed) leaves
+    its column with the caption only."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    exposure = auto_exposure(reference)
+    n = 1 + len(tiles)
+    fig, axes = plt.subplots(2, n, figsize=(2.3 * n, 5.0), dpi=110, squeeze=False,
+                             layout="constrained")
+    for ax in axes.ravel():
+        ax.set_xticks([])
+        ax.set_yticks([])
+    axes[0, 0].imshow(srgb_tonemap(reference, exposure), interpolation="nearest")
+    axes[0, 0].set_title(ref_label, fontsize=7)
+    axes[1, 0].axis("off")
+    shown = None
+    for k, (label, image, caption) in enumerate(tiles, start=1):
+        axes[0, k].set_title(label, fontsize=7)
+        if image is None:
+            axes[0, k].text(0.5, 0.5, textwrap.fill(caption, 30), ha="center", va="center",
+                            fontsize=6, transform=axes[0, k].transAxes)
+            axes[1, k].axis("off")
+            continue
+        err = flip_map(image, reference)
+        axes[0, k].imshow(srgb_tonemap(image, exposure), interpolation="nearest")
+        axes[0, k].set_xlabel(caption, fontsize=6)
+        shown = axes[1, k].imshow(err, cmap="magma", vmin=0.0, vmax=1.0, interpolation="nearest")
+        axes[1, k].set_xlabel(f"FLIP mean {float(err.mean()):.4f}", fontsize=7)
+    if shown is not None:
+        fig.colorbar(shown, ax=axes[1, 0], location="left", fraction=0.5, label="FLIP error")
+    fig.suptitle(f"{title}  (exposure {exposure:+.1f} stops)", fontsize=8)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
+# -- the run -----------------------------------------------------------------------------------
+
+def scene_settings(scene_path, res: int, params: dict):
+    """(params, film_res) for one scene: ``res`` as ``-D res=PX`` where the scene declares
+    ``$res`` (a ``-D res`` of the command line wins), else as the film's longer side."""
+    params = dict(params)
+    if has_res_parameter(scene_path):
+        params.setdefault("res", res)
+        return params, None
+    return params, res
+
+
+def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: dict,
+                ref_spp: int, seed: int, out_dir: str, counter, log=print, detail=None) -> dict:
+    """Run every integrator on one scene; write ``<name>.json``, ``<name>.png`` and
+    ``<name>_images.png``; return the scene's entry of bench.json (curves, rows, files).
+
+    An integrator that refuses the scene (or fails) gets a row saying so and the run goes on;
+    ``counter``: [done, total] of (scene, integrator) pairs, for the progress lines."""
+    from ..scenefile import SceneFileError
+    from .check import refusal_of
+    from .reference import reference_image
+
+    detail = detail or (lambda *_: None)
+    params, film_res = scene_settings(scene_path, res, params)
+    curves, images, failures, walls = {}, {}, {}, {}
+
+    def keep_image(spec, curve, image):  # the render at the largest spp, for the strip
+        images[spec] = image
+
+    for spec in specs:
+        t0 = time.perf_counter()
+        try:
+            got = harness.run_compare(scene_path, [spec], budget, params, ref_spp=ref_spp,
+                                      seed=seed, log=detail, film_res=film_res,
+                                      on_curve=keep_image)
+            curves[spec] = got[spec]
+        except SceneFileError:
+            raise
+        except Exception as e:  # noqa: BLE001 (one integrator's failure must not end the run)
+            cause = refusal_of(e)
+            why = (f"refused: {' '.join(str(cause).split())}" if cause is not None
+                   else f"failed: {type(e).__name__}: {' '.join(str(e).split())[:300]}")
+            failures[spec] = why
+            detail(f"  {spec}: {why}\n{traceback.format_exc()}")
+        walls[spec] = time.perf_counter() - t0
+        counter[0] += 1
+        log(_progress_line(counter, name, spec, curves.get(spec), failures.get(spec),
+                           walls[spec]))
+    baseline = next((s for s in specs if s.split(":")[0] == "path"), "path")
+    harness.summarise(curves, baseline=baseline)
+    reference = reference_image(scene_path, params, spp=ref_spp, film_res=film_res)
+    h, w = reference.shape[:2]
+    label = f"{name} ({w}×{h})"
+    rows = []
+    for spec in specs:
+        if spec in curves:
+            rows.append(table_row(label, curves[spec], curves.get(baseline)))
+        else:
+            rows.append(failed_row(label, spec, failures[spec]))
+    meta = {"scene": os.fspath(scene_path), "params": params, "film_res": film_res,
+            "budget": budget, "ref_spp": ref_spp, "seed": seed}
+    files = {"json": f"{name}.json", "plot": f"{name}.png", "images": f"{name}_images.png"}
+    harness.write_json(curves, os.path.join(out_dir, files["json"]), meta=meta)
+    harness.write_plot(curves, os.path.join(out_dir, files["plot"]),
+                       title=f"{name} {w}×{h}, budget {budget:g} s per integrator")
+    tiles = []
+    for spec in specs:
+        if spec in curves:
+            p = curves[spec].points[-1]
+            tiles.append((spec, images[spec], f"{p.spp} spp, {p.seconds:.2f} s, "
+                                              f"relMSE {p.relmse:.2e}"))
+        else:
+            tiles.append((spec, None, failures[spec]))
+    write_image_strip(os.path.join(out_dir, files["images"]), reference,
+                      f"reference: path, {ref_spp} spp", tiles, title=f"{name} {w}×{h}")
+    return {**meta, "name": name, "size": [w, h], "files": files, "rows": rows,
+            "wall_seconds": walls, "failed": failures,
+            "curves": {k: asdict(c) for k, c in curves.items()}}
+
+
+def _progress_line(counter, name, spec, curve, failure, wall) -> str:
+    """``[3/36] office  rex  10 points to 512 spp, 24.1 s, relMSE 3.1e-03, t(0.01) 4.2 s``."""
+    head = f"[{counter[0]}/{counter[1]}] {name:<18} {spec:<28}"
+    if curve is None:
+        return f"{head} {failure}  ({wall:.1f} s)"
+    last = curve.points[-1]
+    tte = harness.time_to_error(curve.points)
+    reached = "not reached" if tte is None else f"{tte:.2f} s"
+    return (f"{head} {len(curve.points):>2} points to {last.spp:>5} spp, "
+            f"relMSE {last.relmse:.2e}, t(relMSE 0.01) {reached}  ({wall:.1f} s)")
+
+
+def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_RES,
+              params: dict | None = None, ref_spp: int | None = None, seed: int = 0,
+              out_dir: str = DEFAULT_OUTPUT_DIR, argv=(), log=print) -> dict:
+    """Run the bench (module docstring) and write its files into ``out_dir``; returns the
+    content of bench.json. ``specs`` should start with ``path`` (the baseline)."""
+    from .reference import DEFAULT_REFERENCE_SPP
+
+    ref_spp = ref_spp or DEFAULT_REFERENCE_SPP
+    params = dict(params or {})
+    os.makedirs(out_dir, exist_ok=True)
+    names = scene_names(scenes)
+    started = datetime.datetime.now().astimezone()
+    info = {"machine": machine_info(), "date": started.isoformat(timespec="seconds"),
+            "command": command_line(argv), "cwd": os.getcwd(), "python": sys.executable,
+            **software_info(), "budget": budget, "res": res, "defines": params,
+            "ref_spp": ref_spp, "seed": seed, "integrators": list(specs),
+            "cache": os.environ.get("MI_TWOPASS_CACHE") or "(default: .cache/references)"}
+    m = info["machine"]
+    log(f"bench: {len(scenes)} scenes × {len(specs)} integrators, budget {budget:g} s each, "
+        f"res {res}, references {ref_spp} spp; at most about "
+        f"{_duration(estimate_seconds(len(scenes), len(specs), budget, 0))} "
+        f"+ uncached references, on {m['cpu']} ({m['usable_cores']} cores)")
+    counter = [0, len(scenes) * len(specs)]
+    t0 = time.perf_counter()
+    entries = {}
+    with open(os.path.join(out_dir, "bench.log"), "w") as logfile:
+        def detail(line):
+            logfile.write(line + "\n")
+            logfile.flush()
+
+        detail(info["command"])
+        for path, name in zip(scenes, names):
+            detail(f"{name}: {path}")
+            entries[name] = bench_scene(path, name, specs, budget, res, params, ref_spp, seed,
+                                        out_dir, counter, log=log, detail=detail)
+    info["wall_seconds"] = time.perf_counter() - t0
+    info["scenes"] = entries
+    with open(os.path.join(out_dir, "bench.json"), "w") as f:
+        json.dump(info, f, indent=1, default=_json_default)
+    header = (f"Bench of {info['date']} on {m['cpu']} ({m['usable_cores']} cores), "
+              f"{info['variant']}, Mitsuba {info['mitsuba']}, commit {info['git_commit']}; "
+              f"took {_duration(info['wall_seconds'])}. Command: `{info['command']}`")
+    rows = [r for e in entries.values() for r in e["rows"]]
+    with open(os.path.join(out_dir, "results.md"), "w") as f:
+        f.write(format_results(rows, header))
+    log(f"wrote {out_dir}/results.md, bench.json, bench.log and per scene <scene>.json, "
+        f"<scene>.png, <scene>_images.png ({_duration(info['wall_seconds'])})")
+    return info
+
+
+def _duration(seconds: float) -> str:
+    """``42 s`` under two minutes, else ``22.5 min``."""
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+
+
+def _json_default(v):
+    """numpy numbers and arrays, and anything else as its string."""
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return str(v)
