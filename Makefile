@@ -2,8 +2,10 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 PYTEST_ARGS ?= -q
+# e.g. make bench BENCH_ARGS="--budget 10 ../shared/scenes/*/scene.xml --corpus"
+BENCH_ARGS ?=
 
-.PHONY: setup demo test previews clean
+.PHONY: setup demo test bench previews clean
 
 setup:
 	bash tools/setup.sh $(VENV)
@@ -13,6 +15,11 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest $(PYTEST_ARGS) tests
+
+# every scenes_xml scene x every integrator, 30 s each: about 23 min on 2 cores (see
+# `python -m mi_twopass bench --help`); the report lands in benchmarks/results.md
+bench: setup
+	$(PY) -m mi_twopass bench $(BENCH_ARGS)
 
 previews: setup
 	$(PY) docs/previews/make_previews.py
