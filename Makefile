@@ -16,7 +16,7 @@ demo: setup
 test: setup
 	$(PY) -m pytest $(PYTEST_ARGS) tests
 
-# every scenes_xml scene x every integrator, 30 s each: about 23 min on 2 cores (see
+# every scenes_xml scene x every integrator, 25 s each: about 24 min on 2 cores (see
 # `python -m mi_twopass bench --help`); the report lands in benchmarks/results.md
 bench: setup
 	$(PY) -m mi_twopass bench $(BENCH_ARGS)

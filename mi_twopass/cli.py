@@ -91,9 +91,9 @@ def build_parser():
                     "results.md, bench.json, <scene>.json, <scene>.png and <scene>_images.png "
                     "into the output folder (mi_twopass/evaluation/bench.py). Run time: each "
                     "(scene, integrator) at most its budget + about 4 s (warm-up, metrics), "
-                    "plus the references when not cached (about 125 s for the six corpus "
-                    "scenes at 128 px, 4096 spp, on 2 cores); the default run is "
-                    "6 scenes x 6 integrators x (30 + 4) s + 125 s = 1349 s, about 23 min.")
+                    "plus the references when not cached (about 30 s a scene at 128 px, "
+                    "4096 spp, on 2 cores); the default run is 7 scenes x 6 integrators "
+                    "x (25 + 4) s + 7 x 30 s = 1428 s, about 24 min.")
     b.add_argument("scenes", nargs="*", metavar="SCENE.xml",
                    help="scenes to run (default: every scenes_xml/*.xml)")
     b.add_argument("--corpus", action="store_true",
@@ -102,7 +102,7 @@ def build_parser():
                    help="comma-separated integrator specs NAME[:key=value...] (default: path "
                         "and every integrator of the suite; path is always added: the baseline)")
     b.add_argument("--budget", type=float, default=None, metavar="SECONDS",
-                   help="seconds per integrator per scene (default 30)")
+                   help="seconds per integrator per scene (default 25)")
     b.add_argument("--res", type=int, default=None, metavar="PX",
                    help="film size: -D res=PX where the scene has $res (a -D res wins), else "
                         "the film's longer side (default 128)")

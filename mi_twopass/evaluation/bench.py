@@ -15,12 +15,14 @@ timed; ``path`` is always measured, it is the baseline). Written into the output
 
 Run time. An integrator costs at most its budget (the harness stops before a point that, at
 about twice the last, would overrun it; it usually spends 60-90 % of it) plus an untimed 1-spp
-warm-up and the error metrics, :data:`OVERHEAD_SECONDS` (4 s) together. References are rendered once
-and cached (``$MI_TWOPASS_CACHE``, else ``.cache/references``): ``path`` at 4096 spp and 128²
-took 12-35 s per corpus scene on a 2-core AMD EPYC, :data:`REFERENCE_SECONDS` (125 s) for
-the six. Default run, 6 scenes × 6 integrators, budget 30 s, references not cached:
-36 × (30 + 4) s + 125 s = 1349 s ≈ 22.5 min (< 30 min; :func:`estimate_seconds`); the budget
-is wall time, so a busier machine lengthens only the references and warm-ups.
+warm-up and the error metrics, :data:`OVERHEAD_SECONDS` (4 s) together. References are rendered
+once and cached (``$MI_TWOPASS_CACHE``, else ``.cache/references``): ``path`` at 4096 spp and
+128² takes 8-41 s per corpus scene on a 2-core AMD EPYC, 188 s for the seven,
+:data:`REFERENCE_SECONDS_PER_SCENE` (30 s) a scene in the estimate. Default run, 7 scenes ×
+6 integrators, budget 25 s, references not cached:
+42 × (25 + 4) s + 7 × 30 s = 1218 + 210 = 1428 s ≈ 24 min (< 30 min; :func:`estimate_seconds`;
+the six scenes of before: 36 × 29 + 180 = 1224 s ≈ 20 min). The budget is wall time, so a busier
+machine lengthens only the references and warm-ups.
 """
 from __future__ import annotations
 
@@ -48,7 +50,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 #: the corpus: every scene of this folder, by default
 CORPUS_DIR = os.path.join(ROOT, "scenes_xml")
 #: seconds per integrator per scene (see the module docstring for the arithmetic)
-DEFAULT_BUDGET = 30.0
+DEFAULT_BUDGET = 25.0
 #: the film's size in pixels (``-D res=PX``, or the longer side for scenes without ``$res``)
 DEFAULT_RES = 128
 DEFAULT_OUTPUT_DIR = "benchmarks"
@@ -56,9 +58,10 @@ DEFAULT_OUTPUT_DIR = "benchmarks"
 #: ≤ 2 s measured at 128², plus compiling kernels not yet cached) and relMSE + FLIP per point
 #: (0.06 s at 128² × at most 17 points)
 OVERHEAD_SECONDS = 4.0
-#: the six corpus references, path at 4096 spp at 128² on a 2-core AMD EPYC: cornell_box 14,
-#: office 35, window_interior 24, many_lights 24, furnace 16, caustic 12 s
-REFERENCE_SECONDS = 125.0
+#: a reference, path at 4096 spp at 128² on a 2-core AMD EPYC, rounded up from the corpus's
+#: (cornell_box 16, office 41, window_interior 29, many_lights 41, furnace 16, caustic 8,
+#: mixed_room 37 s: 32² at 64 spp timed, × 1024)
+REFERENCE_SECONDS_PER_SCENE = 30.0
 #: results.md's columns, in order
 COLUMNS = ("scene", "integrator", "t(relMSE 0.01) s", "speed-up vs path", "equal-time ratio",
            "equal-spp ratio", "relMSE @ max spp", "prepass share", "rays / viewing ray",
@@ -78,10 +81,12 @@ def corpus_scenes() -> list:
 
 
 def estimate_seconds(n_scenes: int, n_integrators: int, budget: float,
-                     reference_seconds: float = REFERENCE_SECONDS) -> float:
-    """Upper estimate of a bench's wall time: every (scene, integrator) its budget plus
-    :data:`OVERHEAD_SECONDS`, plus the references when they are not cached."""
-    return n_scenes * n_integrators * (budget + OVERHEAD_SECONDS) + reference_seconds
+                     references: bool = True) -> float:
+    """Upper estimate of a bench's wall time at 128²: every (scene, integrator) its budget
+    plus :data:`OVERHEAD_SECONDS`, plus (``references``: not cached)
+    :data:`REFERENCE_SECONDS_PER_SCENE` per scene."""
+    refs = n_scenes * REFERENCE_SECONDS_PER_SCENE if references else 0.0
+    return n_scenes * n_integrators * (budget + OVERHEAD_SECONDS) + refs
 
 
 def scene_names(paths) -> list:
@@ -435,7 +440,8 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
 
 def _progress_line(counter, name, spec, curve, failure, wall) -> str:
     """``[3/36] office  rex  10 points to 512 spp, 24.1 s, relMSE 3.1e-03, t(0.01) 4.2 s``."""
-    head = f"[{counter[0]}/{counter[1]}] {name:<18} {spec:<28}"
+    width = len(str(counter[1]))
+    head = f"[{counter[0]:>{width}}/{counter[1]}] {name:<18} {spec:<28}"
     if curve is None:
         return f"{head} {failure}  ({wall:.1f} s)"
     last = curve.points[-1]
@@ -465,7 +471,7 @@ def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_
     m = info["machine"]
     log(f"bench: {len(scenes)} scenes × {len(specs)} integrators, budget {budget:g} s each, "
         f"res {res}, references {ref_spp} spp; at most about "
-        f"{_duration(estimate_seconds(len(scenes), len(specs), budget, 0))} "
+        f"{_duration(estimate_seconds(len(scenes), len(specs), budget, references=False))} "
         f"+ uncached references, on {m['cpu']} ({m['usable_cores']} cores)")
     counter = [0, len(scenes) * len(specs)]
     t0 = time.perf_counter()
