@@ -231,6 +231,8 @@ def render_command(scene_path, output, integrator_spec=None, spp=0, defines=(), 
     spp = spp or int(sensor.sampler().sample_count())
     integrator = make_integrator(integrator_spec) if integrator_spec else scene.integrator()
     two_pass = isinstance(integrator, TwoPassIntegrator)
+    if hasattr(integrator, "planned_spp"):  # twopass chooses for the whole render, not a pass
+        integrator.planned_spp = spp
     w, h = (int(v) for v in sensor.film().crop_size())
     sizes = pass_sizes(spp, w * h)
     t0 = time.perf_counter()

@@ -127,6 +127,9 @@ class TwoPassChooser(TwoPassIntegrator):
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self._candidates = {}  # plugin name+props -> integrator, kept so prepasses are reused
         self._render_spp = 0
+        #: samples per pixel of the whole image when a caller renders it in several passes
+        #: (``python -m mi_twopass render`` does): the choice is made for the whole, not a pass
+        self.planned_spp = 0
 
     def settings(self):
         return (tuple(sorted(self.forced.items(), key=lambda kv: kv[0])), self.pilot_settings,
@@ -291,7 +294,7 @@ class TwoPassChooser(TwoPassIntegrator):
             return TwoPassIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
         if self.max_depth == 0:
             return self._render_black(scene, sensor, seed, spp, develop, evaluate)
-        self._render_spp = int(spp)
+        self._render_spp = int(self.planned_spp or spp)
         if self.debug != "none":  # the base class's render, with sample_technique
             return TwoPassIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
         choice, seconds = self.ensure_prepass(scene, seed, sensor)

@@ -210,3 +210,15 @@ def test_direct_debug_view_shows_spike_lists_on_a_scene_with_many_lights():
     black = np.all(img == 0, axis=1)
     assert orange.mean() > 0.5
     assert np.all(orange | grey | black)
+
+
+def test_a_render_in_passes_is_chosen_for_its_whole_spp(tiny_scene_file, tmp_path, monkeypatch):
+    """``python -m mi_twopass render`` splits a large render into passes: twopass must weigh
+    the prepasses against the whole render's samples, not one pass's."""
+    from mi_twopass import cli
+
+    monkeypatch.setattr(cli, "LANES_PER_PASS", 16 * 16 * 4)
+    res = cli.render_command(tiny_scene_file, str(tmp_path / "a.exr"), "twopass", spp=64,
+                             out=lambda *_: None)
+    assert res["passes"] == 16
+    assert "at 64 spp" in res["stats"]["twopass_reason"]
