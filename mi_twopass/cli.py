@@ -7,6 +7,7 @@
                                [--ref-spp N] [-D key=value] [--json PATH]
     python -m mi_twopass bench [SCENE.xml ...] [--corpus] [--integrators a,b] [--budget S]
                                [--res PX] [-D key=value] [--ref-spp N] [-o benchmarks]
+    python -m mi_twopass bench --cold [SCENE.xml] [--integrators a,b] [--res PX] [--spp N]
     python -m mi_twopass demo
 
 A mistake (a missing or malformed scene, an unknown integrator or parameter, a bad option)
@@ -112,6 +113,17 @@ def build_parser():
     b.add_argument("-o", "--output-dir", default=None, help="output folder (default benchmarks/)")
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--variant", default=None, help="Mitsuba variant (default llvm_ad_rgb)")
+    b.add_argument(
+        "--cold", action="store_true",
+        help="cold start instead (mi_twopass/evaluation/cold_start.py): per integrator (path "
+             "and the suite, or --integrators) the first render in a fresh Python process "
+             "with an empty Dr.Jit kernel cache, beside the same with the cache filled (run "
+             "twice, the second reported), and the kernels compiled; one scene (default "
+             "scenes_xml/cornell_box.xml), --res (default 128), --spp (default 16); writes "
+             "cold.md and cold.json. Default run: 6 integrators x 3 processes, about "
+             "6 x 20 s = 2 min")
+    b.add_argument("--spp", type=int, default=None,
+                   help="with --cold: samples per pixel of the measured render (default 16)")
 
     d = sub.add_parser("demo", help="render the demo scene and print time and relMSE")
     d.add_argument("--integrator", default=DEMO_INTEGRATOR)
@@ -359,22 +371,14 @@ def check_command(args, out=print):
     return result
 
 
-def bench_command(args, out=print):
-    """``bench``: check the command line, then :func:`mi_twopass.evaluation.bench.run_bench`."""
-    _setup(args.variant)
+def _bench_scenes(args, default) -> list:
+    """The scenes of a ``bench`` command: those given (``default`` when none), plus the corpus
+    with ``--corpus``, each once, each checked to exist and parse."""
     from .evaluation import bench
-    from .scenefile import SceneFileError, parse_defines
+    from .scenefile import SceneFileError
 
-    budget = bench.DEFAULT_BUDGET if args.budget is None else args.budget
-    res = bench.DEFAULT_RES if args.res is None else args.res
-    out_dir = args.output_dir or bench.DEFAULT_OUTPUT_DIR
-    if budget <= 0:
-        raise CLIError(f"--budget {args.budget}: must be > 0 seconds")
-    for option, value in (("--res", res), ("--ref-spp", args.ref_spp)):
-        if value is not None and value < 1:
-            raise CLIError(f"{option} {value}: must be >= 1")
-    scenes = list(args.scenes)
-    if not scenes or args.corpus:
+    scenes = list(args.scenes) or list(default)
+    if args.corpus:
         scenes += bench.corpus_scenes()
     seen, unique = set(), []
     for path in scenes:
@@ -387,6 +391,29 @@ def bench_command(args, out=print):
         if not os.path.isfile(path):
             raise SceneFileError(f"scene file not found: {path}")
         bench.has_res_parameter(path)  # malformed XML: an error now, not after an hour
+    return unique
+
+
+def bench_command(args, out=print):
+    """``bench``: check the command line, then :func:`mi_twopass.evaluation.bench.run_bench`
+    (or, with ``--cold``, :func:`bench_cold_command`)."""
+    _setup(args.variant)
+    from .evaluation import bench
+    from .scenefile import parse_defines
+
+    if args.spp is not None and not args.cold:
+        raise CLIError(f"--spp {args.spp}: only with --cold (the harness doubles spp itself)")
+    if args.cold:
+        return bench_cold_command(args, out)
+    budget = bench.DEFAULT_BUDGET if args.budget is None else args.budget
+    res = bench.DEFAULT_RES if args.res is None else args.res
+    out_dir = args.output_dir or bench.DEFAULT_OUTPUT_DIR
+    if budget <= 0:
+        raise CLIError(f"--budget {args.budget}: must be > 0 seconds")
+    for option, value in (("--res", res), ("--ref-spp", args.ref_spp)):
+        if value is not None and value < 1:
+            raise CLIError(f"{option} {value}: must be >= 1")
+    unique = _bench_scenes(args, bench.corpus_scenes())
     params = parse_defines(args.defines)
     specs = _specs(args.integrators or ",".join(bench.suite_integrators()), "--integrators")
     if not any(s.split(":")[0] == "path" for s in specs):
@@ -395,6 +422,36 @@ def bench_command(args, out=print):
     return bench.run_bench(unique, specs, budget=budget, res=res, params=params,
                            ref_spp=_ref_spp(args), seed=args.seed, out_dir=out_dir,
                            argv=getattr(args, "argv", ()), log=out)
+
+
+def bench_cold_command(args, out=print):
+    """``bench --cold``: check the options, then
+    :func:`mi_twopass.evaluation.cold_start.run_cold`."""
+    from .evaluation import bench, cold_start
+    from .scenefile import parse_defines
+
+    for option, value in (("--budget", args.budget), ("--ref-spp", args.ref_spp)):
+        if value is not None:
+            raise CLIError(f"{option} {value}: not with --cold (it renders once, no reference)")
+    if args.corpus:
+        raise CLIError("--corpus: not with --cold (it measures one scene)")
+    if len(args.scenes) > 1:
+        raise CLIError(f"--cold measures one scene; {len(args.scenes)} given")
+    res = cold_start.DEFAULT_RES if args.res is None else args.res
+    spp = cold_start.DEFAULT_SPP if args.spp is None else args.spp
+    for option, value in (("--res", res), ("--spp", spp)):
+        if value < 1:
+            raise CLIError(f"{option} {value}: must be >= 1")
+    scene = _bench_scenes(args, [cold_start.DEFAULT_SCENE])[0]
+    params = parse_defines(args.defines)
+    specs = _specs(args.integrators or ",".join(bench.suite_integrators()), "--integrators")
+    if not any(s.split(":")[0] == "path" for s in specs):
+        specs.insert(0, "path")
+    out_dir = args.output_dir or bench.DEFAULT_OUTPUT_DIR
+    _make_folder(os.path.join(out_dir, "cold.md"), "-o")
+    return cold_start.run_cold(scene, specs, res=res, spp=spp, params=params, seed=args.seed,
+                               out_dir=out_dir, variant=args.variant,
+                               argv=getattr(args, "argv", ()), log=out)
 
 
 def main(argv=None):
