@@ -7,6 +7,8 @@
                                [--ref-spp N] [-D key=value] [--json PATH]
     python -m mi_twopass bench [SCENE.xml ...] [--corpus] [--integrators a,b] [--budget S]
                                [--res PX] [-D key=value] [--ref-spp N] [-o benchmarks]
+    python -m mi_twopass bench --sweep [64,128,...] [SCENE.xml ...] [--integrators a,b]
+                               [--budget S] [--ref-spp N] [-o benchmarks]
     python -m mi_twopass bench --cold [SCENE.xml] [--integrators a,b] [--res PX] [--spp N]
     python -m mi_twopass demo
 
@@ -113,6 +115,17 @@ def build_parser():
     b.add_argument("-o", "--output-dir", default=None, help="output folder (default benchmarks/)")
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--variant", default=None, help="Mitsuba variant (default llvm_ad_rgb)")
+    b.add_argument(
+        "--sweep", nargs="?", const="64,128,256,512,1024", default=None, metavar="SIZES",
+        help="resolution sweep instead (mi_twopass/evaluation/sweep.py): the harness on each "
+             "scene at each film size (comma-separated, default 64,128,256,512,1024); writes "
+             "sweep.md, sweep.png (speed-up over path against pixels) and sweep.json. Default "
+             "scenes many_lights, caustic, window_interior, each with path, its home "
+             "integrator (spike_gather, rex, radiance_cache) and twopass. --budget (default "
+             "10) and --ref-spp (default 2048) are given at 128 px and scaled by side / 128 "
+             "(budget) and 128 / side (reference spp). Default run on 2 cores: budgets "
+             "9 x 10 s x (0.5+1+2+4+8) = 1395 s, warm-ups and metrics 9 x 69 s = 620 s, "
+             "references 3 x 15 s x 15.5 = 698 s: about 2713 s, 45 min")
     b.add_argument(
         "--cold", action="store_true",
         help="cold start instead (mi_twopass/evaluation/cold_start.py): per integrator (path "
@@ -396,13 +409,18 @@ def _bench_scenes(args, default) -> list:
 
 def bench_command(args, out=print):
     """``bench``: check the command line, then :func:`mi_twopass.evaluation.bench.run_bench`
-    (or, with ``--cold``, :func:`bench_cold_command`)."""
+    (or, with ``--sweep`` / ``--cold``, :func:`bench_sweep_command` /
+    :func:`bench_cold_command`)."""
     _setup(args.variant)
     from .evaluation import bench
     from .scenefile import parse_defines
 
+    if args.sweep is not None and args.cold:
+        raise CLIError("--sweep and --cold: choose one")
     if args.spp is not None and not args.cold:
         raise CLIError(f"--spp {args.spp}: only with --cold (the harness doubles spp itself)")
+    if args.sweep is not None:
+        return bench_sweep_command(args, out)
     if args.cold:
         return bench_cold_command(args, out)
     budget = bench.DEFAULT_BUDGET if args.budget is None else args.budget
@@ -422,6 +440,40 @@ def bench_command(args, out=print):
     return bench.run_bench(unique, specs, budget=budget, res=res, params=params,
                            ref_spp=_ref_spp(args), seed=args.seed, out_dir=out_dir,
                            argv=getattr(args, "argv", ()), log=out)
+
+
+def bench_sweep_command(args, out=print):
+    """``bench --sweep``: check the options, then
+    :func:`mi_twopass.evaluation.sweep.run_sweep`."""
+    from .evaluation import bench, sweep
+    from .scenefile import parse_defines
+
+    try:
+        sizes = sweep.parse_sizes(args.sweep)
+    except ValueError as e:
+        raise CLIError(f"--sweep {args.sweep}: {e}") from e
+    if args.res is not None:
+        raise CLIError(f"--res {args.res}: not with --sweep (it sets the film sizes)")
+    budget = sweep.DEFAULT_BUDGET if args.budget is None else args.budget
+    ref_spp = sweep.DEFAULT_REF_SPP if args.ref_spp is None else args.ref_spp
+    if budget <= 0:
+        raise CLIError(f"--budget {args.budget}: must be > 0 seconds")
+    if ref_spp < 1:
+        raise CLIError(f"--ref-spp {ref_spp}: must be >= 1")
+    params = parse_defines(args.defines)
+    if "res" in params:
+        raise CLIError("-D res: not with --sweep (it sets the film sizes)")
+    scenes = _bench_scenes(args, sweep.DEFAULT_SCENES)
+    specs = None
+    if args.integrators:
+        specs = _specs(args.integrators, "--integrators")
+        if not any(s.split(":")[0] == "path" for s in specs):
+            specs.insert(0, "path")  # the baseline is always measured in the same run
+    out_dir = args.output_dir or bench.DEFAULT_OUTPUT_DIR
+    _make_folder(os.path.join(out_dir, "sweep.md"), "-o")
+    return sweep.run_sweep(scenes, sizes, specs, budget=budget, ref_spp=ref_spp, params=params,
+                           seed=args.seed, out_dir=out_dir, argv=getattr(args, "argv", ()),
+                           log=out)
 
 
 def bench_cold_command(args, out=print):

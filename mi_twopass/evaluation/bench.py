@@ -23,6 +23,10 @@ once and cached (``$MI_TWOPASS_CACHE``, else ``.cache/references``): ``path`` at
 42 × (25 + 4) s + 7 × 30 s = 1218 + 210 = 1428 s ≈ 24 min (< 30 min; :func:`estimate_seconds`;
 the six scenes of before: 36 × 29 + 180 = 1224 s ≈ 20 min). The budget is wall time, so a busier
 machine lengthens only the references and warm-ups.
+
+Two other reports share the command: ``bench --sweep 64,128,...``, the speed-up over ``path``
+against the image's size (:mod:`mi_twopass.evaluation.sweep`), and ``bench --cold``, the first
+render's cost with and without Dr.Jit's kernel cache (:mod:`mi_twopass.evaluation.cold_start`).
 """
 from __future__ import annotations
 
