@@ -56,7 +56,7 @@ CAUSTIC_SHARE = 0.2
 BIAS_SIGMAS = 3.0
 #: building stops once the pilot and the prepasses built have taken this share of the time
 #: ``path`` is predicted to need for the render (``pilot_budget``)
-PILOT_BUDGET = 0.5
+PILOT_BUDGET = 0.25
 #: a prepass is predicted to cost at least this many path samples' time per light path it
 #: traces (radiosity particles, rex photons); measured on the corpus at 128²: 2.4 (office,
 #: window_interior) to 38 (furnace), docs/design.md "twopass"
@@ -191,6 +191,21 @@ def prepass_floor(light_path_count: int, path: Measured, film_pixels: int) -> fl
     return PREPASS_FLOOR_FACTOR * light_path_count * path.seconds_per_spp / max(film_pixels, 1)
 
 
+def none_fit(light_path_counts: dict, path_samples: int, budget_share: float):
+    """Before any pilot: the budget is ``budget_share`` × the render's ``path_samples`` (film
+    pixels × spp) path samples' time and a prepass's floor is :data:`PREPASS_FLOOR_FACTOR`
+    path samples per light path (:func:`prepass_floor`), so whether a composition's floor fits
+    does not depend on path's cost per sample. Returns {name: reason} when none fits (the
+    render is path, with no pilot), else None."""
+    limit = budget_share * path_samples / PREPASS_FLOOR_FACTOR
+    if any(n < limit for n in light_path_counts.values()):
+        return None
+    return {name: (f"no pilot: its prepass traces {n} light paths, at least "
+                   f"{PREPASS_FLOOR_FACTOR:g} path samples' time each, more than "
+                   f"{budget_share:g} x the render's {path_samples} path samples")
+            for name, n in light_path_counts.items()}
+
+
 def best_case_score(parts: VarianceParts, path: Measured, c: Composition, spp: int) -> float:
     """The score ``c`` could at best reach: no prepass, path's cost per sample, no bias, the
     variance of :meth:`VarianceParts.best_case`."""
@@ -229,6 +244,9 @@ class Decision:
     best_case: dict = field(default_factory=dict)  # name -> best-case score
 
     def reason(self) -> str:
+        if self.chosen.name not in self.measured:  # forced, or no prepass could fit
+            why = self.skipped.get("pilot") or "no prepass fits the pilot budget"
+            return f"{self.chosen.name} at {self.spp} spp, no pilot: {why}"
         m = self.measured[self.chosen.name]
         others = [f"{n}: {self.measured[n].score(self.spp):.3g}" for n in self.measured
                   if n != self.chosen.name]

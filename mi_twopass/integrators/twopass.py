@@ -99,7 +99,7 @@ class TwoPassChooser(TwoPassIntegrator):
      * - pilot_budget
        - |float|
        - No prepass is started once the pilot and the prepasses built have spent this share
-         of the time ``path`` is predicted to need for the render (default: 0.5; 0: path only,
+         of the time ``path`` is predicted to need for the render (default: 0.25; 0: path only,
          unless a choice is forced).
      * - debug
        - |string|
@@ -180,6 +180,16 @@ class TwoPassChooser(TwoPassIntegrator):
         film_pixels = pixels.film_pixels
         path_row = cost.COMPOSITIONS[0]
         path_integ = self.candidate(path_row)
+        if path_row in self.allowed:
+            # no pilot where no prepass can fit the budget whatever path's cost per sample
+            too_big = cost.none_fit(
+                {c.name: cost.light_paths(self.candidate(c), scene)
+                 for c in self.allowed if c.needs_prepass},
+                spp * film_pixels, self.pilot_budget)
+            if too_big is not None:
+                decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big)
+                return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
+                                                      "prepasses": 0.0})
         parts_out = []
 
         def path_estimator(scene_, sampler, ray, active):
@@ -276,7 +286,7 @@ class TwoPassChooser(TwoPassIntegrator):
         d = choice.decision
         return {
             "twopass_choice": d.chosen.name,
-            "twopass_reason": d.reason() if d.measured else "forced from XML",
+            "twopass_reason": d.reason(),
             "twopass_candidates": {
                 n: {"prepass_seconds": m.prepass_seconds, "seconds_per_spp": m.seconds_per_spp,
                     "relative_variance": m.variance, "bias2": m.bias2,

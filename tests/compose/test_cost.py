@@ -63,3 +63,11 @@ def test_prepass_floor_counts_light_paths_at_path_cost():
     # 1e6 light paths on a 100×100 film: 100 path samples per pixel's worth of paths
     assert cost.prepass_floor(10**6, path, 10**4) == pytest.approx(
         cost.PREPASS_FLOOR_FACTOR * 100 * 0.02)
+
+
+def test_none_fit_decides_without_a_pilot_only_when_every_floor_is_too_big():
+    counts = {"a": 262144, "b": 4 * 10**6}
+    # 16384 pixels x 16 spp: half of it over the factor 2 is 65536 light paths
+    reasons = cost.none_fit(counts, 16384 * 16, 0.5)
+    assert set(reasons) == {"a", "b"} and all("no pilot" in r for r in reasons.values())
+    assert cost.none_fit(counts, 16384 * 256, 0.5) is None  # 1 M > 262144: a may fit

@@ -131,11 +131,26 @@ def test_no_rex_without_caustics_and_stats_say_why():
     assert tp.stats["prepass_seconds"] >= tp.stats["pilot_seconds"] > 0
 
 
-def test_short_render_builds_nothing_it_cannot_pay_for():
-    """1 spp of a 16×16 image: every prepass's predicted floor exceeds half of path's time."""
+def test_short_render_builds_nothing_and_runs_no_pilot():
+    """1 spp of a 16×16 image: every prepass traces more light paths than half the render's
+    256 path samples over the floor factor, so twopass is path without a pilot."""
     scene = mi.load_dict(hs.box())
     tp = mi.load_dict({"type": "twopass"})
     render(scene, tp, spp=1)
+    assert tp.stats["twopass_choice"] == cost.COMPOSITIONS[0].name
+    assert tp.stats["twopass_candidates"] == {}
+    assert "no pilot" in tp.stats["twopass_reason"]
+    assert all(r.startswith("no pilot") for r in tp.stats["twopass_skipped"].values())
+
+
+def test_budget_stops_building_once_the_pilot_has_spent_it():
+    """The budget is 1 × the render's path time, N·256 samples with N·256 = 2.2 × 262144 (the
+    particles of the smallest prepass). That prepass's floor, 2 × 262144 samples' time, fits
+    before the pilot (2 < 2.2) but leaves 0.2 × 262144 ≈ 52k samples' time, which the path
+    pilot's 147456 samples alone exceed: nothing is built, path is chosen."""
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass", "pilot_budget": 1.0})
+    render(scene, tp, spp=int(2.2 * 262144 / 256))
     assert tp.stats["twopass_choice"] == cost.COMPOSITIONS[0].name
     assert list(tp.stats["twopass_candidates"]) == [cost.COMPOSITIONS[0].name]
     assert any(r.startswith("budget") for r in tp.stats["twopass_skipped"].values())
