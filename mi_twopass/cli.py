@@ -10,6 +10,9 @@
     python -m mi_twopass bench --sweep [64,128,...] [SCENE.xml ...] [--integrators a,b]
                                [--budget S] [--ref-spp N] [-o benchmarks]
     python -m mi_twopass bench --cold [SCENE.xml] [--integrators a,b] [--res PX] [--spp N]
+    python -m mi_twopass bench --prepass [SCENE.xml] [--integrators a,b] [--sizes 64,...]
+                               [--triangles N,...] [--emitters N,...] [--no-full-hd]
+                               [--timeout S] [--quick]
     python -m mi_twopass demo
 
 A mistake (a missing or malformed scene, an unknown integrator or parameter, a bad option)
@@ -137,12 +140,49 @@ def build_parser():
              "6 x 20 s = 2 min")
     b.add_argument("--spp", type=int, default=None,
                    help="with --cold: samples per pixel of the measured render (default 16)")
+    _add_prepass_args(b)
 
     d = sub.add_parser("demo", help="render the demo scene and print time and relMSE")
     d.add_argument("--integrator", default=DEMO_INTEGRATOR)
     d.add_argument("--spp", type=int, default=64)
     d.add_argument("-o", "--output", default="out/demo.exr")
     return parser
+
+
+def _add_prepass_args(b):
+    """``bench --prepass`` and its options (mi_twopass/evaluation/prepass_scaling.py)."""
+    from .evaluation import prepass_scaling as ps
+
+    def csv(values):
+        return ",".join(map(str, values))
+
+    b.add_argument(
+        "--prepass", action="store_true",
+        help="prepass scaling instead (mi_twopass/evaluation/prepass_scaling.py): per "
+             "integrator (the suite, or --integrators; path renders 32 spp as the reference "
+             "line) the prepass's seconds and peak memory, each in a fresh process beside a "
+             "process that only loads the scene, against the film size (one scene, default "
+             "scenes_xml/cornell_box.xml, also --scene), the triangles of a sphere mesh and "
+             "the number of small area lights in the Cornell box (128 px), and at 1920x1080 "
+             "(the 2 GB target); writes prepass_scaling.md, .json and .png. " + ps.estimate_text())
+    b.add_argument("--scene", dest="prepass_scene", default=None, metavar="SCENE.xml",
+                   help="with --prepass: the scene of the film-size and full-HD studies")
+    b.add_argument("--sizes", default=None, metavar="PX,...",
+                   help=f"with --prepass: film sizes (longer side; default {csv(ps.DEFAULT_SIZES)}"
+                        f", --quick {csv(ps.QUICK_SIZES)})")
+    b.add_argument("--triangles", default=None, metavar="N,...",
+                   help="with --prepass: about this many triangles in the sphere mesh (default "
+                        f"{csv(ps.DEFAULT_TRIANGLES)}, --quick {csv(ps.QUICK_TRIANGLES)})")
+    b.add_argument("--emitters", default=None, metavar="N,...",
+                   help="with --prepass: numbers of area lights (default "
+                        f"{csv(ps.DEFAULT_EMITTERS)}, --quick {csv(ps.QUICK_EMITTERS)})")
+    b.add_argument("--full-hd", action=argparse.BooleanOptionalAction, default=None,
+                   help="with --prepass: also measure at 1920x1080 (default on)")
+    b.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
+                   help="with --prepass: seconds a measurement may take before it is stopped "
+                        f"and recorded as timeout (default {ps.DEFAULT_TIMEOUT:g})")
+    b.add_argument("--quick", action="store_true",
+                   help="with --prepass: fewer points (" + ps.estimate_text(quick=True) + ")")
 
 
 def _setup(variant):
@@ -415,6 +455,9 @@ def bench_command(args, out=print):
     from .evaluation import bench
     from .scenefile import parse_defines
 
+    if args.prepass:
+        return bench_prepass_command(args, out)
+    _no_prepass_options(args)
     if args.sweep is not None and args.cold:
         raise CLIError("--sweep and --cold: choose one")
     if args.spp is not None and not args.cold:
@@ -504,6 +547,71 @@ def bench_cold_command(args, out=print):
     return cold_start.run_cold(scene, specs, res=res, spp=spp, params=params, seed=args.seed,
                                out_dir=out_dir, variant=args.variant,
                                argv=getattr(args, "argv", ()), log=out)
+
+
+#: options only ``bench --prepass`` reads, with their argparse dest
+PREPASS_OPTIONS = (("--scene", "prepass_scene"), ("--sizes", "sizes"),
+                   ("--triangles", "triangles"), ("--emitters", "emitters"),
+                   ("--full-hd / --no-full-hd", "full_hd"), ("--timeout", "timeout"),
+                   ("--quick", "quick"))
+
+
+def _no_prepass_options(args):
+    for option, dest in PREPASS_OPTIONS:
+        value = getattr(args, dest, None)
+        if value is not None and not (dest == "quick" and value is False):
+            raise CLIError(f"{option}: only with --prepass")
+
+
+def bench_prepass_command(args, out=print):
+    """``bench --prepass``: check the options, then
+    :func:`mi_twopass.evaluation.prepass_scaling.run_prepass_scaling`."""
+    from .evaluation import bench
+    from .evaluation import prepass_scaling as ps
+    from .scenefile import parse_defines
+
+    if args.sweep is not None or args.cold:
+        raise CLIError(f"--prepass and {'--sweep' if args.sweep is not None else '--cold'}: "
+                       "choose one")
+    for option, value in (("--budget", args.budget), ("--ref-spp", args.ref_spp),
+                          ("--res", args.res), ("--spp", args.spp)):
+        if value is not None:
+            raise CLIError(f"{option} {value}: not with --prepass (see --sizes; path renders "
+                           f"{ps.PATH_SPP} spp, twopass chooses for {ps.TWOPASS_SPP})")
+    if args.corpus:
+        raise CLIError("--corpus: not with --prepass (it measures one scene)")
+    scenes = list(args.scenes) + ([args.prepass_scene] if args.prepass_scene else [])
+    if len(scenes) > 1:
+        raise CLIError(f"--prepass measures one scene; {len(scenes)} given")
+    lists = {}
+    for option, value, default, quick in (
+            ("--sizes", args.sizes, ps.DEFAULT_SIZES, ps.QUICK_SIZES),
+            ("--triangles", args.triangles, ps.DEFAULT_TRIANGLES, ps.QUICK_TRIANGLES),
+            ("--emitters", args.emitters, ps.DEFAULT_EMITTERS, ps.QUICK_EMITTERS)):
+        if value is None:
+            lists[option] = list(quick if args.quick else default)
+            continue
+        try:
+            lists[option] = ps.parse_counts(value, option[2:])
+        except ValueError as e:
+            raise CLIError(f"{option} {value}: {e}") from e
+    timeout = ps.DEFAULT_TIMEOUT if args.timeout is None else args.timeout
+    if not timeout > 0:
+        raise CLIError(f"--timeout {args.timeout}: must be > 0 seconds")
+    full_hd = (not args.quick) if args.full_hd is None else args.full_hd
+    args.scenes = scenes
+    scene = _bench_scenes(args, [ps.DEFAULT_SCENE])[0]
+    params = parse_defines(args.defines)
+    specs = _specs(args.integrators or ",".join(bench.suite_integrators()), "--integrators")
+    if not any(s.split(":")[0] == "path" for s in specs):
+        specs.insert(0, "path")  # the reference line
+    out_dir = args.output_dir or bench.DEFAULT_OUTPUT_DIR
+    _make_folder(os.path.join(out_dir, "prepass_scaling.md"), "-o")
+    return ps.run_prepass_scaling(scene, specs, sizes=lists["--sizes"],
+                                  triangles=lists["--triangles"], emitters=lists["--emitters"],
+                                  full_hd=full_hd, timeout=timeout, params=params,
+                                  seed=args.seed, out_dir=out_dir, variant=args.variant,
+                                  argv=getattr(args, "argv", ()), log=out)
 
 
 def main(argv=None):
