@@ -14,11 +14,14 @@ Speed-up. ``path``'s time to relMSE 0.01 over the method's (prepass included), a
 Where either did not reach 0.01 within its budget, the point is drawn hollow at the equal-time
 relMSE ratio instead (path's relMSE at the method's time, interpolated log-log, over the
 method's): for unbiased methods whose relMSE falls as 1/time that is the same number, and it is
-measured at every size. A point with neither is left out (its table cell says ``—``).
+measured at every size. Where the method's first point already lies beyond path's whole curve
+(a prepass longer than path's budget, at small sizes), path's relMSE there is extrapolated from
+its last point as falling as 1/time above the reference floor (``≈`` in the table, hollow in
+the figure). A point with none of these is left out (its table cell says ``—``).
 
 Budget, scaled with the film's side (pixels^0.5): ``--budget`` is the seconds per (scene,
 integrator) at 128², and a size of ``res`` gets ``budget × res / 128``. Why: a flat budget
-leaves 1024² a handful of spp (``path`` on many_lights costs 0.64 s per spp there), so the
+leaves 1024² a handful of spp (``path`` on many_lights costs about 0.3 s per spp there), so the
 large sizes would compare prepasses with 1-4 spp renders; a budget ∝ pixels keeps the spp
 reached but costs 64× at 1024² (10 s becomes 11 min per run). ∝ pixels^0.5 is between: the
 spp reached halves per doubling of the side, and a sweep 64…1024 costs 15.5 runs at 128².
@@ -39,9 +42,12 @@ per (scene, integrator)), ``sweep.md`` (:data:`COLUMNS`) and ``sweep.log`` (ever
 
 Run time of the default (3 scenes × 3 integrators × 64…1024, budget 10 s, reference 2048 spp at
 128², references not cached; :func:`estimate_seconds`): the budgets 9 × 10 s × (0.5 + 1 + 2 +
-4 + 8) = 1395 s; the warm-ups and metrics, :func:`overhead_seconds` per run, 9 × (4 + 4 + 6 +
-13 + 43) s = 630 s; the references 3 × 15 s × (0.5 + 1 + 2 + 4 + 8) = 698 s (15 s: a 128²
-reference at 2048 spp, half the bench's 30 s at 4096). Together 2723 s ≈ 45 min on 2 cores.
+4 + 8) = 1395 s; the warm-ups and metrics, :func:`overhead_seconds` per run, 9 × (4 + 4 + 6.1 +
+14.5 + 48.1) s = 690 s; the references 3 × 15 s × (0.5 + 1 + 2 + 4 + 8) = 698 s (15 s: a 128²
+reference at 2048 spp, half the bench's 30 s at 4096; the three took 19, 12 and 24 s at 4096
+spp). Together 2783 s ≈ 46 min on an idle 2-core machine. The metrics are most of the
+overhead at the large sizes: the harness computes HDR-FLIP for every point, about 0.07 s per
+128² of image (4.5 s per point at 1024², 8-17 s measured on a machine loaded twice over).
 """
 from __future__ import annotations
 
@@ -129,7 +135,7 @@ def point_budget(budget: float, res: int) -> float:
 
 def reference_spp(ref_spp: int, res: int) -> int:
     """The reference's spp at size ``res``: ``ref_spp`` (given at 128²) × 128 / res, rounded,
-    at least :data:`MIN_REF_SPP` (never more than ``ref_spp`` × 128 / res asks for)."""
+    at least :data:`MIN_REF_SPP` (or ``ref_spp`` itself where that is smaller)."""
     return max(min(MIN_REF_SPP, ref_spp), int(round(ref_spp / size_factor(res))))
 
 
@@ -141,10 +147,10 @@ def max_spp(pixels: int) -> int:
 def overhead_seconds(res: int) -> float:
     """Per (scene, size, integrator), beyond its budget: the untimed 1-spp warm-up (prepass
     included) and relMSE + FLIP per point; :data:`~mi_twopass.evaluation.bench.OVERHEAD_SECONDS`
-    up to 128², then growing with the pixels (metrics ≈ 0.06 s per point per 128², a 1-spp
-    render and a prepass that look through the camera)."""
+    up to 128², then 0.7 s more per further 128² of image (FLIP ≈ 0.07 s per point per 128²,
+    about 10 points, and a 1-spp render and prepasses that look through the camera)."""
     pixels = (res / BASE_RES) ** 2
-    return OVERHEAD_SECONDS + 0.6 * max(0.0, pixels - 1.0)
+    return OVERHEAD_SECONDS + 0.7 * max(0.0, pixels - 1.0)
 
 
 def estimate_seconds(n_runs_per_size: int, sizes, budget: float, ref_spp: int,
@@ -179,37 +185,60 @@ def reference_floor(path_points, ref_spp: int):
     return values[mid] if len(values) % 2 else 0.5 * (values[mid - 1] + values[mid])
 
 
-def equal_time_errors(points, path_points):
-    """(time, path's relMSE there, the method's) at the method's last point inside path's time
-    range (as :func:`mi_twopass.evaluation.harness.summarise`'s equal-time ratio), or None."""
+def extrapolated_path_relmse(path_points, seconds: float, floor=None):
+    """path's relMSE at ``seconds`` outside its measured time range: from its nearest point,
+    the part above the reference floor falling as 1 / time (path is unbiased), the floor
+    kept; None without points."""
+    pts = [p for p in path_points if p.relmse > 0 and p.seconds > 0]
+    if not pts:
+        return None
+    end = max(pts, key=lambda p: p.seconds) if seconds > pts[-1].seconds else \
+        min(pts, key=lambda p: p.seconds)
+    f = min(floor or 0.0, end.relmse)
+    return f + (end.relmse - f) * end.seconds / seconds
+
+
+def equal_time_errors(points, path_points, floor=None):
+    """(time, path's relMSE there, the method's, extrapolated?) at the method's last point
+    inside path's time range (as :func:`mi_twopass.evaluation.harness.summarise`'s equal-time
+    ratio); where no point is inside it (a prepass longer than path's whole curve, at small
+    sizes), at the method's last point with path's relMSE extrapolated
+    (:func:`extrapolated_path_relmse`). None without points."""
     base_t = [p.seconds for p in path_points]
     base_e = [p.relmse for p in path_points]
     found = None
     for p in points:
         e = harness._loglog_interp(base_t, base_e, p.seconds)
         if e is not None and p.relmse > 0:
-            found = (p.seconds, e, p.relmse)
+            found = (p.seconds, e, p.relmse, False)
+    if found is None and points and points[-1].relmse > 0:
+        last = points[-1]
+        e = extrapolated_path_relmse(path_points, last.seconds, floor)
+        if e is not None:
+            found = (last.seconds, e, last.relmse, True)
     return found
 
 
 def floor_removed_ratio(points, path_points, floor):
     """The equal-time ratio with the reference floor taken off both errors:
     (path's − floor) / (method's − floor); None where either is not above the floor."""
-    got = equal_time_errors(points, path_points)
+    got = equal_time_errors(points, path_points, floor)
     if got is None or floor is None:
         return None
-    _, base, own = got
+    _, base, own, _ = got
     if base <= floor or own <= floor:
         return None
     return (base - floor) / (own - floor)
 
 
 def plotted_speedup(row: dict):
-    """(value, ``"t(0.01)"`` | ``"equal-time"``) of a row (module docstring), or (None, None)."""
+    """(value, ``"t(0.01)"`` | ``"equal-time"`` | ``"equal-time≈"``) of a row (module
+    docstring), or (None, None)."""
     if row.get("speedup") is not None:
         return row["speedup"], "t(0.01)"
     if row.get("equal_time_ratio") is not None:
-        return row["equal_time_ratio"], "equal-time"
+        return row["equal_time_ratio"], ("equal-time≈" if row.get("equal_time_extrapolated")
+                                         else "equal-time")
     return None, None
 
 
@@ -226,6 +255,12 @@ def sweep_row(scene: str, res: int, size, spec: str, curve, path_curve, budget: 
     else:
         row = bench_row(scene, curve, path_curve)
     path_points = path_curve.points if path_curve is not None else []
+    row["equal_time_extrapolated"] = False
+    if curve is not None and row["equal_time_ratio"] is None and path_points:
+        got = equal_time_errors(curve.points, path_points, floor)
+        if got is not None:
+            row["equal_time_ratio"] = got[1] / got[2]
+            row["equal_time_extrapolated"] = got[3]
     row.update(res=res, width=w, height=h, pixels=w * h, budget=budget, ref_spp=ref_spp,
                ref_floor=floor,
                path_time_to_target=(harness.time_to_error(path_points) if path_points
@@ -238,6 +273,11 @@ def sweep_row(scene: str, res: int, size, spec: str, curve, path_curve, budget: 
 
 def _num(v, fmt) -> str:
     return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+
+def _ratio(v) -> str:
+    """A ratio to two decimals, or two significant digits below 0.1."""
+    return _num(v, ".2f" if v is None or abs(v) >= 0.1 else ".2g")
 
 
 def format_row(row: dict) -> str:
@@ -256,10 +296,11 @@ def format_row(row: dict) -> str:
         cells = head + [
             "not reached" if tte is None else f"{tte:.3g}",
             _num(row["path_time_to_target"], ".3g"),
-            _num(row["plotted"], ".2f"),
+            _ratio(row["plotted"]),
             row["plotted_from"] or "—",
-            _num(row["equal_time_ratio"], ".2f"),
-            _num(row["floor_removed_ratio"], ".2f"),
+            ("≈" if row["equal_time_extrapolated"] and row["equal_time_ratio"] is not None
+             else "") + _ratio(row["equal_time_ratio"]),
+            _ratio(row["floor_removed_ratio"]),
             f"{row['final_relmse']:.2e} ({row['final_spp']} spp)",
             "—" if share is None else f"{100 * share:.0f} %",
         ]
@@ -288,7 +329,10 @@ def format_table(rows, header: str) -> str:
         "were reached (*from* t(0.01), a filled marker), else the equal-time ratio (*from* "
         "equal-time, a hollow marker); — where neither was measured (left out of the plot).",
         "- **equal-time ratio**: path's relMSE at the integrator's time (log-log interpolated, "
-        "at its last point inside path's time range) over the integrator's; > 1: better.",
+        "at its last point inside path's time range) over the integrator's; > 1: better. "
+        "≈ (*from* equal-time≈): no point inside path's range (the prepass alone outlasts "
+        "path's curve), path's relMSE extrapolated from its last point as 1/time above the "
+        "floor.",
         "- **floor-removed ratio**: the same with the reference floor taken off both errors "
         "(— where either is not above it): the ratio a noiseless reference would show.",
         "- **relMSE @ max spp**: error at the largest spp reached (an upper bound of the bias "
@@ -345,7 +389,9 @@ def write_figure(rows, path: str, title: str = "") -> None:
     filled = plt.Line2D([], [], marker="o", color="k", ls="none",
                         label="filled: path's t(relMSE 0.01) / the method's")
     hollow = plt.Line2D([], [], marker="o", color="k", mfc="white", ls="none",
-                        label="hollow: equal-time relMSE ratio (a t(0.01) not reached)")
+                        label="hollow: equal-time relMSE ratio (a t(0.01) not reached;\n"
+                              "path extrapolated as 1/time where the method's first point\n"
+                              "comes after path's last)")
     missing = plt.Line2D([], [], ls="none",
                          label="no marker: neither measured (— in sweep.md), left out")
     handles, _ = ax.get_legend_handles_labels()

@@ -7,7 +7,7 @@ import pytest
 
 from mi_twopass import cli
 from mi_twopass.evaluation import sweep
-from mi_twopass.evaluation.harness import Point
+from mi_twopass.evaluation.harness import Curve, Point
 
 
 def _table(text):
@@ -98,9 +98,20 @@ def test_rules_and_floor_arithmetic():
     # a method 4× better than path at equal time: the raw ratio is pulled towards 1 by the
     # floor, the floor-removed one is 4
     method = [Point(s, 0.4 * s, 0.05 / s + floor, 0.1, 0.1) for s in (1, 2)]
-    t, base, own = sweep.equal_time_errors(method, path)
-    assert t == pytest.approx(0.8) and base / own < 4
+    t, base, own, extrapolated = sweep.equal_time_errors(method, path)
+    assert t == pytest.approx(0.8) and base / own < 4 and not extrapolated
     assert sweep.floor_removed_ratio(method, path, floor) == pytest.approx(4.0)
+
+    # a method whose first point comes after path's last: path extrapolated as 1/time
+    # above the floor (0.8 / 16 + floor at 1.6 s, so 0.8 / 32 + floor at 3.2 s)
+    slow = [Point(1, 3.2, 0.01 + floor, 0.1, 0.1)]
+    t, base, own, extrapolated = sweep.equal_time_errors(slow, path, floor)
+    assert extrapolated and t == 3.2 and base == pytest.approx(0.8 / 32 + floor)
+    row = sweep.sweep_row("s", 8, (8, 8), "m", Curve("m", slow, {"equal_time_ratio": None}),
+                          Curve("path", path), 1.0, ref_spp, floor)
+    assert row["equal_time_ratio"] == pytest.approx(base / own)
+    assert row["plotted_from"] == "equal-time≈" and "≈" in sweep.format_row(row)
+    assert row["floor_removed_ratio"] == pytest.approx(2.5)
 
     est = sweep.estimate_seconds(9, sweep.DEFAULT_SIZES, sweep.DEFAULT_BUDGET,
                                  sweep.DEFAULT_REF_SPP, 3)
