@@ -127,8 +127,9 @@ def build_parser():
              "integrator (spike_gather, rex, radiance_cache) and twopass. --budget (default "
              "10) and --ref-spp (default 2048) are given at 128 px and scaled by side / 128 "
              "(budget) and 128 / side (reference spp). Default run on 2 cores: budgets "
-             "9 x 10 s x (0.5+1+2+4+8) = 1395 s, warm-ups and metrics 9 x 69 s = 620 s, "
-             "references 3 x 15 s x 15.5 = 698 s: about 2713 s, 45 min")
+             "9 x 10 s x (0.5+1+2+4+8) = 1395 s, warm-ups and metrics (FLIP per point, "
+             "about 0.07 s per 128x128 of image) 9 x 77 s = 690 s, references "
+             "3 x 15 s x 15.5 = 698 s: about 2783 s, 46 min")
     b.add_argument(
         "--cold", action="store_true",
         help="cold start instead (mi_twopass/evaluation/cold_start.py): per integrator (path "
@@ -137,7 +138,7 @@ def build_parser():
              "twice, the second reported), and the kernels compiled; one scene (default "
              "scenes_xml/cornell_box.xml), --res (default 128), --spp (default 16); writes "
              "cold.md and cold.json. Default run: 6 integrators x 3 processes, about "
-             "6 x 20 s = 2 min")
+             "6 x 10 s = 1 min (measured 44 s on 2 cores, rex's slow renders 31 s of it)")
     b.add_argument("--spp", type=int, default=None,
                    help="with --cold: samples per pixel of the measured render (default 16)")
     _add_prepass_args(b)

@@ -26,9 +26,10 @@ kernel of the same scene came out under two hashes in three processes), so they 
 
 Written into the output folder: ``cold.json`` (machine, versions, command, and per integrator
 every run's numbers) and ``cold.md`` (:data:`COLUMNS`). Run time: per integrator three
-processes, each Python's start and imports (about 1 s) and a scene load, plus the render
-itself (cold: seconds of compiling; warm: about the harness's time); estimate:
-:func:`estimate_seconds`.
+processes, each Python's start and imports (about 0.5 s) and a scene load, plus the render
+itself (cold: up to a second of compiling; warm: about the harness's time). The default run
+(cornell_box, 128², 16 spp, path and the five of the suite) took 44 s on a 2-core AMD EPYC,
+rex's three renders 31 s of it; :func:`estimate_seconds` says 6 × 10 s = 60 s.
 """
 from __future__ import annotations
 
@@ -52,9 +53,11 @@ CHILD_TIMEOUT = 900.0
 WARM_RUNS = 2
 #: the line of a child's stdout that carries its result as JSON
 RESULT_MARK = "MI_TWOPASS_COLD_START "
-#: per integrator: three processes' start, imports and scene load (~1.5 s each) and the
-#: renders (cold ~10 s: compiling; warm ~2 s each), for :func:`estimate_seconds`
-SECONDS_PER_INTEGRATOR = 20.0
+#: per integrator, for :func:`estimate_seconds`: three processes' start, imports and scene
+#: load (~0.5 s each) and the three renders. Measured on the Cornell box at 128², 16 spp, on
+#: a 2-core AMD EPYC: 1-4 s per integrator, rex 31 s (its renders take 9-11 s themselves),
+#: 44 s for the six; 10 s an integrator rounds that up
+SECONDS_PER_INTEGRATOR = 10.0
 #: cold.md's columns, in order
 COLUMNS = ("integrator", "cold s", "warm s", "cold / warm", "kernels compiled cold",
            "kernels total", "unique kernels", "compile ms cold", "compiled warm",
@@ -242,7 +245,8 @@ def format_table(rows, header: str) -> str:
 
 def estimate_seconds(n_integrators: int, warm_runs: int = WARM_RUNS) -> float:
     """Rough wall time of a cold-start run at the defaults (128², 16 spp):
-    :data:`SECONDS_PER_INTEGRATOR` per integrator (``warm_runs`` = 2)."""
+    :data:`SECONDS_PER_INTEGRATOR` per integrator for its three processes (``warm_runs`` = 2),
+    scaled by the number of processes otherwise."""
     return n_integrators * SECONDS_PER_INTEGRATOR * (1 + warm_runs) / 3
 
 
