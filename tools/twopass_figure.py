@@ -33,8 +33,8 @@ def timed(scene, integrator, spp, seed=0):
 
 
 def panel(image, label, tonemap=True):
-    rgb = srgb_tonemap(image) if tonemap else np.clip(image, 0, 1)
-    im = Image.fromarray((rgb * 255).astype(np.uint8))
+    rgb = srgb_tonemap(image) if tonemap else (np.clip(image, 0, 1) * 255).astype(np.uint8)
+    im = Image.fromarray(rgb)
     ImageDraw.Draw(im).text((4, 4), label, fill=(255, 255, 255))
     return im
 
