@@ -178,7 +178,8 @@ def _add_prepass_args(b):
                    help="with --prepass: numbers of area lights (default "
                         f"{csv(ps.DEFAULT_EMITTERS)}, --quick {csv(ps.QUICK_EMITTERS)})")
     b.add_argument("--full-hd", action=argparse.BooleanOptionalAction, default=None,
-                   help="with --prepass: also measure at 1920x1080 (default on)")
+                   help="with --prepass: also measure at 1920x1080 (default on, --quick "
+                        "too)")
     b.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                    help="with --prepass: seconds a measurement may take before it is stopped "
                         f"and recorded as timeout (default {ps.DEFAULT_TIMEOUT:g})")
@@ -599,7 +600,7 @@ def bench_prepass_command(args, out=print):
     timeout = ps.DEFAULT_TIMEOUT if args.timeout is None else args.timeout
     if not timeout > 0:
         raise CLIError(f"--timeout {args.timeout}: must be > 0 seconds")
-    full_hd = (not args.quick) if args.full_hd is None else args.full_hd
+    full_hd = True if args.full_hd is None else args.full_hd
     args.scenes = scenes
     scene = _bench_scenes(args, [ps.DEFAULT_SCENE])[0]
     params = parse_defines(args.defines)

@@ -38,7 +38,11 @@ HD as bars with the 2 GB target).
 
 Run time: :func:`estimate_seconds`, from :data:`CHILD_OVERHEAD_SECONDS` per process and
 per-integrator costs measured on 2 cores (:data:`COST_MODEL`); the arithmetic is in
-:func:`estimate_text` and the ``bench --help`` text.
+:func:`estimate_text` and the ``bench --help`` text. Default run: 13 points × 7 processes = 91
+processes × 1 s = 91 s, plus the work: sizes 107 s, triangles 52 s, emitters 247 s (rex alone
+131 s with 1000 lights), 1920×1080 30 s; about 527 s ≈ 9 min (measured on 2 cores, in two
+parts: about 8 min). ``--quick`` (sizes 64…256, 1k and 10k triangles, 1…100 emitters, and
+1920×1080): 63 processes, about 4 min (its points without full HD took 2.8 min).
 """
 from __future__ import annotations
 
@@ -94,18 +98,21 @@ DEFAULT_SPECS = ("path", "radiosity_gather", "radiance_cache", "rex", "spike_gat
 STUDY_TITLES = {"size": "image size", "triangles": "triangles", "emitters": "emitters",
                 "full_hd": "1920×1080"}
 
-#: per process: Python's start, the imports and the scene's load, about 2 s on 2 cores
-CHILD_OVERHEAD_SECONDS = 2.5
+#: per process: Python's start, the imports and the scene's load (0.5-1 s measured on 2 cores)
+CHILD_OVERHEAD_SECONDS = 1.0
 #: seconds of a measurement, for :func:`estimate_seconds`: (fixed, per megapixel, per 1k
-#: triangles, per emitter), measured on the Cornell box on a 2-core AMD EPYC
-#: (``path``: its render at PATH_SPP spp; twopass: pilot and prepasses at 64 spp)
+#: triangles, per emitter), fitted to a run on the Cornell box on a 2-core AMD EPYC
+#: (2026-11-25; ``path``: its render at PATH_SPP spp, 13.3 s at 1024², 4.8 s with 1000
+#: emitters; rex: 12.2 s at 128², 17.5 s at 1024², 16.3 s at 1920×1080, 131 s with 1000
+#: emitters; twopass: pilot and prepasses for 64 spp, 3.4 s at 1024², 0.01 s at 128² where it
+#: renders path without a pilot; the others 0.5-1 s at every size, 3-28 s with 1000 emitters)
 COST_MODEL = {
-    "path": (0.3, 45.0, 0.0, 0.0),
-    "radiosity_gather": (1.5, 4.0, 0.05, 0.01),
-    "spike_gather": (3.0, 20.0, 0.05, 0.05),
-    "rex": (8.0, 45.0, 0.2, 0.01),
-    "radiance_cache": (3.0, 20.0, 0.1, 0.01),
-    "twopass": (6.0, 40.0, 0.1, 0.02),
+    "path": (0.2, 13.0, 0.0, 0.0045),
+    "radiosity_gather": (0.5, 0.0, 0.004, 0.011),
+    "radiance_cache": (0.8, 0.0, 0.015, 0.0022),
+    "rex": (13.0, 4.0, 0.01, 0.12),
+    "spike_gather": (0.7, 0.0, 0.006, 0.027),
+    "twopass": (0.5, 2.5, 0.0, 0.0),
 }
 
 
@@ -495,7 +502,7 @@ def _progress(k, total, point, spec, e) -> str:
             f"({e['process_seconds']:.0f} s)")
 
 
-# -- the report -------------------------------------------------------------------------------------
+# -- the report ------------------------------------------------------------------------------------
 
 def _cell_seconds(e) -> str:
     if e is None:
@@ -779,7 +786,7 @@ def estimate_text(quick: bool = False) -> str:
     for the help text."""
     if quick:
         kw = dict(sizes=QUICK_SIZES, triangles=QUICK_TRIANGLES, emitters=QUICK_EMITTERS,
-                  full_hd=False)
+                  full_hd=True)
     else:
         kw = dict(sizes=DEFAULT_SIZES, triangles=DEFAULT_TRIANGLES, emitters=DEFAULT_EMITTERS,
                   full_hd=True)
@@ -787,7 +794,7 @@ def estimate_text(quick: bool = False) -> str:
     n = len(DEFAULT_SPECS)
     points = len(kw["sizes"]) + len(kw["triangles"]) + len(kw["emitters"]) + kw["full_hd"]
     text = (f"{points} points x ({n} integrators + a baseline) = {p['processes']} processes x "
-            f"{CHILD_OVERHEAD_SECONDS:g} s start = {p['start']:.0f} s; measured work (on 2 "
+            f"{CHILD_OVERHEAD_SECONDS:g} s start = {p['start']:.0f} s; work (fitted to a run on 2 "
             f"cores, the 6 integrators together): sizes {_csv(kw['sizes'])} {p['size']:.0f} s, "
             f"triangles {_csv(kw['triangles'])} {p['triangles']:.0f} s, emitters "
             f"{_csv(kw['emitters'])} {p['emitters']:.0f} s")
@@ -802,7 +809,7 @@ def _csv(values) -> str:
     return ",".join(map(str, values))
 
 
-# -- the run ----------------------------------------------------------------------------------------
+# -- the run ---------------------------------------------------------------------------------------
 
 def run_prepass_scaling(scene_path=DEFAULT_SCENE, specs=None, sizes=DEFAULT_SIZES,
                         triangles=DEFAULT_TRIANGLES, emitters=DEFAULT_EMITTERS,

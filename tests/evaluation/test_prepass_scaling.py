@@ -175,10 +175,12 @@ def test_cli_prepass_options(monkeypatch, tmp_path, capsys):
     assert got["scene"] == ps.DEFAULT_SCENE and got["specs"] == ["path", SPEC]
     assert got["sizes"] == list(ps.QUICK_SIZES) and got["emitters"] == [1, 4]
     assert got["triangles"] == list(ps.QUICK_TRIANGLES) and got["timeout"] == 9
-    assert got["full_hd"] is False and got["out_dir"] == str(out)
+    assert got["full_hd"] is True and got["out_dir"] == str(out)
     assert cli.main(["bench", "--prepass", "--scene", ps.DEFAULT_SCENE, "--sizes", "8", "-o",
                      str(out)]) == 0
     assert got["sizes"] == [8] and got["full_hd"] is True
+    assert cli.main(["bench", "--prepass", "--no-full-hd", "-o", str(out)]) == 0
+    assert got["full_hd"] is False and got["sizes"] == list(ps.DEFAULT_SIZES)
     assert got["triangles"] == list(ps.DEFAULT_TRIANGLES)
 
 
