@@ -41,7 +41,6 @@ import subprocess
 import sys
 import textwrap
 import time
-import traceback
 import xml.etree.ElementTree as ET
 from dataclasses import asdict
 
@@ -49,6 +48,7 @@ import numpy as np
 
 from . import harness
 from .images import srgb_tonemap
+from .runs import num, run_integrator, table_head, table_line
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 #: the corpus: every scene of this folder, by default
@@ -240,40 +240,35 @@ def failed_row(scene_label: str, spec: str, why: str) -> dict:
     return row
 
 
-def _num(v, fmt) -> str:
-    return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
-
-
 def format_row(row: dict) -> str:
     """One Markdown table line for :func:`table_row`'s dict."""
     if row["failed"]:
         cells = [row["scene"], f"`{row['integrator']}`", f"{row['failed']}"] + \
             ["—"] * (len(COLUMNS) - 3)
-        return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+        return table_line(cells)
     tte = row["time_to_target"]
-    spp_ratio = _num(row["equal_spp_ratio"], ".2f")
+    spp_ratio = num(row["equal_spp_ratio"], ".2f")
     if row["equal_spp_extrapolated"] and row["equal_spp_ratio"] is not None:
         spp_ratio = "≈" + spp_ratio
     share = row["prepass_share"]
     cells = [
         row["scene"], f"`{row['integrator']}`",
         "not reached" if tte is None else f"{tte:.3g}",
-        _num(row["speedup"], ".2f"),
-        _num(row["equal_time_ratio"], ".2f"),
+        num(row["speedup"], ".2f"),
+        num(row["equal_time_ratio"], ".2f"),
         spp_ratio,
         f"{row['final_relmse']:.2e} ({row['final_spp']} spp)",
         "—" if share is None else f"{100 * share:.0f} %",
-        _num(row["rays_per_viewing_ray"], ".2f"),
+        num(row["rays_per_viewing_ray"], ".2f"),
         row["twopass_choice"] or "",
     ]
-    return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+    return table_line(cells)
 
 
 def format_results(rows, header: str) -> str:
     """results.md: the header line, one table over all rows, and what each column means."""
     lines = [header, "",
-             "| " + " | ".join(COLUMNS) + " |",
-             "| " + " | ".join("---" for _ in COLUMNS) + " |"]
+             *table_head(COLUMNS)]
     lines += [format_row(r) for r in rows]
     lines += [
         "",
@@ -380,8 +375,6 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
 
     An integrator that refuses the scene (or fails) gets a row saying so and the run goes on;
     ``counter``: [done, total] of (scene, integrator) pairs, for the progress lines."""
-    from ..scenefile import SceneFileError
-    from .check import refusal_of
     from .reference import reference_image
 
     detail = detail or (lambda *_: None)
@@ -392,21 +385,13 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
         images[spec] = image
 
     for spec in specs:
-        t0 = time.perf_counter()
-        try:
-            got = harness.run_compare(scene_path, [spec], budget, params, ref_spp=ref_spp,
-                                      seed=seed, log=detail, film_res=film_res,
-                                      on_curve=keep_image)
-            curves[spec] = got[spec]
-        except SceneFileError:
-            raise
-        except Exception as e:  # noqa: BLE001 (one integrator's failure must not end the run)
-            cause = refusal_of(e)
-            why = (f"refused: {' '.join(str(cause).split())}" if cause is not None
-                   else f"failed: {type(e).__name__}: {' '.join(str(e).split())[:300]}")
-            failures[spec] = why
-            detail(f"  {spec}: {why}\n{traceback.format_exc()}")
-        walls[spec] = time.perf_counter() - t0
+        curve, failure, walls[spec] = run_integrator(
+            scene_path, spec, budget, params, ref_spp, seed, detail, film_res=film_res,
+            on_curve=keep_image)
+        if curve is not None:
+            curves[spec] = curve
+        if failure is not None:
+            failures[spec] = failure
         counter[0] += 1
         log(_progress_line(counter, name, spec, curves.get(spec), failures.get(spec),
                            walls[spec]))

@@ -42,6 +42,8 @@ import sys
 import tempfile
 import time
 
+from .runs import table_head, table_line
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFAULT_SCENE = os.path.join(ROOT, "scenes_xml", "cornell_box.xml")
 #: the film's size (``-D res=PX`` where the scene has ``$res``, else its longer side)
@@ -214,14 +216,13 @@ def format_row(row: dict) -> str:
                  str(row["compiled_cold"]), str(row["launches"]), str(row["unique"]),
                  f"{row['backend_ms_cold']:.0f}", str(row["compiled_warm"]),
                  f"{row['load_cold_seconds']:.3g} / {row['load_warm_seconds']:.3g}"]
-    return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+    return table_line(cells)
 
 
 def format_table(rows, header: str) -> str:
     """cold.md: the header, the table and what each column means."""
     lines = [header, "",
-             "| " + " | ".join(COLUMNS) + " |",
-             "| " + " | ".join("---" for _ in COLUMNS) + " |"]
+             *table_head(COLUMNS)]
     lines += [format_row(r) for r in rows]
     lines += [
         "",

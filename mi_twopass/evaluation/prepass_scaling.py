@@ -58,6 +58,8 @@ import tempfile
 import time
 import xml.etree.ElementTree as ET
 
+from .runs import table_line
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CORNELL_BOX = os.path.join(ROOT, "scenes_xml", "cornell_box.xml")
 DEFAULT_SCENE = CORNELL_BOX
@@ -615,7 +617,7 @@ def format_report(data: dict) -> str:
                      _gb(e.get("peak_bytes")) if ok else "—",
                      _gb(e.get("extra_bytes")) if ok and e["kind"] != "baseline" else "—",
                      fits, _bytes(stats.get("cache_bytes")), note]
-            lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |")
+            lines.append(table_line(cells))
         lines.append("")
     chose = [e for e in entries if e["status"] == "ok" and (e.get("stats") or {}).get(
         "twopass_choice")]

@@ -57,10 +57,10 @@ import math
 import os
 import sys
 import time
-import traceback
 from dataclasses import asdict
 
 from . import harness
+from .runs import num, run_integrator, table_head, table_line
 from .bench import (CORPUS_DIR, OVERHEAD_SECONDS, REFERENCE_SECONDS_PER_SCENE, _duration,
                     _json_default, _progress_line, command_line, machine_info, scene_names,
                     scene_settings, software_info, table_row as bench_row)
@@ -271,19 +271,15 @@ def sweep_row(scene: str, res: int, size, spec: str, curve, path_curve, budget: 
     return row
 
 
-def _num(v, fmt) -> str:
-    return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
-
-
 def _ratio(v) -> str:
     """A ratio to two decimals, or two significant digits below 0.1."""
-    return _num(v, ".2f" if v is None or abs(v) >= 0.1 else ".2g")
+    return num(v, ".2f" if v is None or abs(v) >= 0.1 else ".2g")
 
 
 def format_row(row: dict) -> str:
     """One Markdown line of :func:`sweep_row`'s dict."""
     floor = row["ref_floor"]
-    floor_cell = _num(floor, ".1e")
+    floor_cell = num(floor, ".1e")
     if floor is not None and floor > FLOOR_WARNING * TARGET:
         floor_cell += " ⚠"
     head = [row["scene"], f"{row['width']}×{row['height']}", str(row["pixels"]),
@@ -295,7 +291,7 @@ def format_row(row: dict) -> str:
         share = row["prepass_share"]
         cells = head + [
             "not reached" if tte is None else f"{tte:.3g}",
-            _num(row["path_time_to_target"], ".3g"),
+            num(row["path_time_to_target"], ".3g"),
             _ratio(row["plotted"]),
             row["plotted_from"] or "—",
             ("≈" if row["equal_time_extrapolated"] and row["equal_time_ratio"] is not None
@@ -304,15 +300,14 @@ def format_row(row: dict) -> str:
             f"{row['final_relmse']:.2e} ({row['final_spp']} spp)",
             "—" if share is None else f"{100 * share:.0f} %",
         ]
-    return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+    return table_line(cells)
 
 
 def format_table(rows, header: str) -> str:
     """sweep.md: the header, one table over every (scene, size, integrator) and what each
     column means."""
     lines = [header, "",
-             "| " + " | ".join(COLUMNS) + " |",
-             "| " + " | ".join("---" for _ in COLUMNS) + " |"]
+             *table_head(COLUMNS)]
     lines += [format_row(r) for r in rows]
     lines += [
         "",
@@ -423,8 +418,6 @@ def sweep_point(scene_path, name: str, res: int, specs, budget: float, ref_spp: 
     """Every integrator of ``specs`` on one scene at one size (budget and reference spp
     already scaled): the curves, the reference floor and the rows. An integrator that
     refuses the scene or fails gets a row saying so and the run goes on."""
-    from ..scenefile import SceneFileError
-    from .check import refusal_of
     from .reference import reference_image
 
     detail = detail or (lambda *_: None)
@@ -436,21 +429,13 @@ def sweep_point(scene_path, name: str, res: int, specs, budget: float, ref_spp: 
     h, w = ref.shape[:2]
     spp_cap = max_spp(w * h)
     for spec in specs:
-        t0 = time.perf_counter()
-        try:
-            got = harness.run_compare(scene_path, [spec], budget, params, ref_spp=ref_spp,
-                                      seed=seed, log=detail, film_res=film_res,
-                                      max_spp=spp_cap)
-            curves[spec] = got[spec]
-        except SceneFileError:
-            raise
-        except Exception as e:  # noqa: BLE001 (one integrator's failure must not end the run)
-            cause = refusal_of(e)
-            why = (f"refused: {' '.join(str(cause).split())}" if cause is not None
-                   else f"failed: {type(e).__name__}: {' '.join(str(e).split())[:300]}")
-            failures[spec] = why
-            detail(f"  {spec}: {why}\n{traceback.format_exc()}")
-        walls[spec] = time.perf_counter() - t0
+        curve, failure, walls[spec] = run_integrator(
+            scene_path, spec, budget, params, ref_spp, seed, detail, film_res=film_res,
+            max_spp=spp_cap)
+        if curve is not None:
+            curves[spec] = curve
+        if failure is not None:
+            failures[spec] = failure
         counter[0] += 1
         log(_progress_line(counter, label, spec, curves.get(spec), failures.get(spec),
                            walls[spec]))
