@@ -95,9 +95,16 @@ def run_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, see
     L = mi.Color3f(L) * mi.Color3f(weight) + dr.zeros(mi.Color3f, n)  # n lanes, even if constant
     dr.eval(L)
     dr.sync_thread()
-    values = np.stack([np.asarray(L.x), np.asarray(L.y), np.asarray(L.z)], axis=-1)
+    values = samples_array(L, pixels, samples)
     seconds = time.perf_counter() - t0
-    return values.reshape(len(pixels.index), samples, 3), seconds
+    return values, seconds
+
+
+def samples_array(spectrum, pixels: PilotPixels, samples: int) -> np.ndarray:
+    """A pilot's RGB values (sample-minor lanes) as an array (pixels, samples, 3)."""
+    arr = np.stack([np.asarray(spectrum.x), np.asarray(spectrum.y), np.asarray(spectrum.z)],
+                   axis=-1)
+    return arr.reshape(len(pixels.index), samples, 3)
 
 
 @dataclass

@@ -12,7 +12,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..compose import cost
-from ..compose.pilot import PilotSettings, choose_pixels, pilot, pixel_means, relative_variance
+from ..compose.pilot import (PilotSettings, choose_pixels, pilot, pixel_means,
+                              relative_variance, samples_array)
 from ..scene.lambertian import is_lambertian
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .component_path import ComponentPathIntegrator
@@ -198,7 +199,7 @@ class TwoPassChooser(TwoPassIntegrator):
             return d + c_ + i
 
         path_run = pilot(scene, sensor, pixels, self.pilot_settings, path_estimator, seed)
-        parts = [np.concatenate([self._as_numpy(p[k], pixels, n) for p, n in
+        parts = [np.concatenate([samples_array(p[k], pixels, n) for p, n in
                                  zip(parts_out, (self.pilot_settings.samples,
                                                  4 * self.pilot_settings.samples,
                                                  4 * self.pilot_settings.samples))], axis=1)
@@ -275,12 +276,6 @@ class TwoPassChooser(TwoPassIntegrator):
         pilot_seconds = time.perf_counter() - t_start - build_seconds
         return Choice(decision, runs[name][1], {"pilot": pilot_seconds,
                                                  "prepasses": build_seconds})
-
-    @staticmethod
-    def _as_numpy(spectrum, pixels, samples):
-        arr = np.stack([np.asarray(spectrum.x), np.asarray(spectrum.y),
-                        np.asarray(spectrum.z)], axis=-1)
-        return arr.reshape(len(pixels.index), samples, 3)
 
     def prepass_stats(self, choice):
         d = choice.decision
