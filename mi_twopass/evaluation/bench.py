@@ -48,7 +48,7 @@ import numpy as np
 
 from . import harness
 from .images import srgb_tonemap
-from .runs import num, run_integrator, table_head, table_line
+from .runs import markdown_report, num, run_integrators, table_line
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 #: the corpus: every scene of this folder, by default
@@ -267,11 +267,7 @@ def format_row(row: dict) -> str:
 
 def format_results(rows, header: str) -> str:
     """results.md: the header line, one table over all rows, and what each column means."""
-    lines = [header, "",
-             *table_head(COLUMNS)]
-    lines += [format_row(r) for r in rows]
-    lines += [
-        "",
+    return markdown_report(header, COLUMNS, [format_row(r) for r in rows], [
         "- **t(relMSE 0.01)**: seconds (prepass included) to reach relMSE 0.01, log-log "
         "interpolated between the bracketing points; *not reached* within the budget.",
         "- **speed-up vs path**: path's t(relMSE 0.01) over the integrator's (— where either "
@@ -286,8 +282,7 @@ def format_results(rows, header: str) -> str:
         "- **rays / viewing ray**: (implicit + explicit + viewing rays) / viewing rays at the "
         "largest spp; — where the integrator does not count them (Mitsuba's path).",
         "- **twopass chose**: the composition twopass rendered with at the largest spp.",
-    ]
-    return "\n".join(lines) + "\n"
+    ])
 
 
 # -- images ------------------------------------------------------------------------------------
@@ -379,24 +374,14 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
 
     detail = detail or (lambda *_: None)
     params, film_res = scene_settings(scene_path, res, params)
-    curves, images, failures, walls = {}, {}, {}, {}
+    images = {}
 
     def keep_image(spec, curve, image):  # the render at the largest spp, for the strip
         images[spec] = image
 
-    for spec in specs:
-        curve, failure, walls[spec] = run_integrator(
-            scene_path, spec, budget, params, ref_spp, seed, detail, film_res=film_res,
-            on_curve=keep_image)
-        if curve is not None:
-            curves[spec] = curve
-        if failure is not None:
-            failures[spec] = failure
-        counter[0] += 1
-        log(_progress_line(counter, name, spec, curves.get(spec), failures.get(spec),
-                           walls[spec]))
-    baseline = next((s for s in specs if s.split(":")[0] == "path"), "path")
-    harness.summarise(curves, baseline=baseline)
+    curves, failures, walls, baseline = run_integrators(
+        scene_path, specs, name, budget, params, ref_spp, seed, counter, log, detail,
+        film_res=film_res, on_curve=keep_image)
     reference = reference_image(scene_path, params, spp=ref_spp, film_res=film_res)
     h, w = reference.shape[:2]
     label = f"{name} ({w}×{h})"
@@ -425,19 +410,6 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
     return {**meta, "name": name, "size": [w, h], "files": files, "rows": rows,
             "wall_seconds": walls, "failed": failures,
             "curves": {k: asdict(c) for k, c in curves.items()}}
-
-
-def _progress_line(counter, name, spec, curve, failure, wall) -> str:
-    """``[3/36] office  rex  10 points to 512 spp, 24.1 s, relMSE 3.1e-03, t(0.01) 4.2 s``."""
-    width = len(str(counter[1]))
-    head = f"[{counter[0]:>{width}}/{counter[1]}] {name:<18} {spec:<28}"
-    if curve is None:
-        return f"{head} {failure}  ({wall:.1f} s)"
-    last = curve.points[-1]
-    tte = harness.time_to_error(curve.points)
-    reached = "not reached" if tte is None else f"{tte:.2f} s"
-    return (f"{head} {len(curve.points):>2} points to {last.spp:>5} spp, "
-            f"relMSE {last.relmse:.2e}, t(relMSE 0.01) {reached}  ({wall:.1f} s)")
 
 
 def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_RES,

@@ -42,7 +42,7 @@ import sys
 import tempfile
 import time
 
-from .runs import table_head, table_line
+from .runs import markdown_report, table_line
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFAULT_SCENE = os.path.join(ROOT, "scenes_xml", "cornell_box.xml")
@@ -221,11 +221,7 @@ def format_row(row: dict) -> str:
 
 def format_table(rows, header: str) -> str:
     """cold.md: the header, the table and what each column means."""
-    lines = [header, "",
-             *table_head(COLUMNS)]
-    lines += [format_row(r) for r in rows]
-    lines += [
-        "",
+    return markdown_report(header, COLUMNS, [format_row(r) for r in rows], [
         "- **cold s**: the first render (fresh integrator, prepass, render, copy to numpy) in a "
         "fresh Python process with an empty Dr.Jit kernel cache (`DRJIT_CACHE_DIR` a new "
         "folder): every kernel is compiled.",
@@ -240,8 +236,7 @@ def format_table(rows, header: str) -> str:
         "differs between processes miss the cache).",
         "- **scene load**: seconds of loading the scene before the render, cold / warm "
         "(not in the render's seconds).",
-    ]
-    return "\n".join(lines) + "\n"
+    ])
 
 
 def estimate_seconds(n_integrators: int, warm_runs: int = WARM_RUNS) -> float:

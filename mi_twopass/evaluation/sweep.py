@@ -60,9 +60,9 @@ import time
 from dataclasses import asdict
 
 from . import harness
-from .runs import num, run_integrator, table_head, table_line
+from .runs import markdown_report, num, run_integrators, table_line
 from .bench import (CORPUS_DIR, OVERHEAD_SECONDS, REFERENCE_SECONDS_PER_SCENE, _duration,
-                    _json_default, _progress_line, command_line, machine_info, scene_names,
+                    _json_default, command_line, machine_info, scene_names,
                     scene_settings, software_info, table_row as bench_row)
 
 #: the sweep's scenes and, per scene (file stem), the suite's integrator made for it
@@ -306,11 +306,7 @@ def format_row(row: dict) -> str:
 def format_table(rows, header: str) -> str:
     """sweep.md: the header, one table over every (scene, size, integrator) and what each
     column means."""
-    lines = [header, "",
-             *table_head(COLUMNS)]
-    lines += [format_row(r) for r in rows]
-    lines += [
-        "",
+    return markdown_report(header, COLUMNS, [format_row(r) for r in rows], [
         f"- **budget s**: seconds per (scene, integrator) at this size: the 128² budget × "
         f"side / {BASE_RES} (module docstring of mi_twopass/evaluation/sweep.py: why).",
         f"- **ref spp**: the reference's spp (path): the 128² value × {BASE_RES} / side.",
@@ -333,8 +329,7 @@ def format_table(rows, header: str) -> str:
         "- **relMSE @ max spp**: error at the largest spp reached (an upper bound of the bias "
         "floor, the reference's included). **prepass share**: prepass seconds over the point's "
         "at that spp.",
-    ]
-    return "\n".join(lines) + "\n"
+    ])
 
 
 # -- the figure --------------------------------------------------------------------------------
@@ -422,25 +417,13 @@ def sweep_point(scene_path, name: str, res: int, specs, budget: float, ref_spp: 
 
     detail = detail or (lambda *_: None)
     params, film_res = scene_settings(scene_path, res, params)
-    curves, failures, walls = {}, {}, {}
-    label = f"{name} {res}"
     # rendered (or read from the cache) before the integrators, outside their budgets
     ref = reference_image(scene_path, params, spp=ref_spp, verbose=True, film_res=film_res)
     h, w = ref.shape[:2]
     spp_cap = max_spp(w * h)
-    for spec in specs:
-        curve, failure, walls[spec] = run_integrator(
-            scene_path, spec, budget, params, ref_spp, seed, detail, film_res=film_res,
-            max_spp=spp_cap)
-        if curve is not None:
-            curves[spec] = curve
-        if failure is not None:
-            failures[spec] = failure
-        counter[0] += 1
-        log(_progress_line(counter, label, spec, curves.get(spec), failures.get(spec),
-                           walls[spec]))
-    baseline = next((s for s in specs if s.split(":")[0] == "path"), "path")
-    harness.summarise(curves, baseline=baseline)
+    curves, failures, walls, baseline = run_integrators(
+        scene_path, specs, f"{name} {res}", budget, params, ref_spp, seed, counter, log, detail,
+        film_res=film_res, max_spp=spp_cap)
     path_curve = curves.get(baseline)
     floor = reference_floor(path_curve.points, ref_spp) if path_curve is not None else None
     rows = [sweep_row(name, res, (w, h), spec, curves.get(spec), path_curve, budget, ref_spp,

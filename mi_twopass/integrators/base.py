@@ -87,6 +87,15 @@ def _check_range(name, value, minimum, maximum, strict, why, shown=None):
                          + (f" ({reason})" if reason else ""))
 
 
+def _from_string(raw: str, convert):
+    """The value a string property spells, ``convert(raw.strip())`` (``int`` or ``float``), or
+    None where ``convert`` refuses it (the readers then name the parameter)."""
+    try:
+        return convert(raw.strip())
+    except ValueError:
+        return None
+
+
 def read_choice(props, name, default, choices):
     """Read a string property and check it is one of ``choices``."""
     value = props.get(name, default)
@@ -113,10 +122,7 @@ def read_int(props, name, default, minimum=None, maximum=None, why=None):
         if math.isfinite(raw) and raw == int(raw):
             value = int(raw)
     elif isinstance(raw, str):
-        try:
-            value = int(raw.strip())
-        except ValueError:
-            value = None
+        value = _from_string(raw, int)
     if value is None:
         raise ValueError(f"{name}={_show(raw)}: expected an integer")
     _check_range(name, value, minimum, maximum, False, why, _show(raw))
@@ -146,10 +152,7 @@ def read_float(props, name, default, minimum=None, strict=False, maximum=None, w
     if isinstance(raw, (int, float)) and not isinstance(raw, bool):
         value = float(raw)
     elif isinstance(raw, str):
-        try:
-            value = float(raw.strip())
-        except ValueError:
-            value = None
+        value = _from_string(raw, float)
     if value is None:
         raise ValueError(f"{name}={_show(raw)}: expected a number")
     if not math.isfinite(value):

@@ -22,16 +22,8 @@ comment = f"""<!--
 
 sc = Scene(comment, origin=(4.0, 1.55, 3.9), target=(2.0, 0.8, 1.5), fov=66)
 
-sc.comment("Outside: sun, sky and ground")
-sc.raw("""    <emitter type="directional" id="sun">
-        <vector name="direction" value="-0.2, -0.55, 0.8"/>
-        <rgb name="irradiance" value="5.0, 4.7, 4.2"/>
-    </emitter>
-    <emitter type="constant" id="sky">
-        <rgb name="radiance" value="0.35, 0.45, 0.7"/>
-    </emitter>""")
-sc.diffuse("ground", (0.25, 0.3, 0.2))
-sc.rect((2.5, -T - 0.01, -3.5), (6, 3.5), "y", 1, "ground", prefix="ground")
+sc.sun_sky_ground((-0.2, -0.55, 0.8), (5.0, 4.7, 4.2), (0.35, 0.45, 0.7),
+                  (2.5, -T - 0.01, -3.5), (6, 3.5))
 
 sc.comment("Materials")
 sc.diffuse("wall", (0.75, 0.72, 0.68))
@@ -49,23 +41,10 @@ sc.raw("""    <bsdf type="dielectric" id="glass">
         <string name="material" value="Cr"/>
     </bsdf>""")
 
-sc.comment("The shell: floor, ceiling, three solid walls and the window wall in four pieces")
-sc.box((-T, -T, -T), (W + T, 0, D + T), "floor", "floor")
-sc.box((-T, H, -T), (W + T, H + T, D + T), "ceiling", "ceiling")
-sc.box((-T, -T, -T), (0, H + T, D + T), "wall", "wall")
-sc.box((W, -T, -T), (W + T, H + T, D + T), "wall", "wall")
-sc.box((-T, -T, D), (W + T, H + T, D + T), "wall", "wall")
-sc.box((-T, -T, -T), (WX0, H + T, 0), "wall", "wall")
-sc.box((WX1, -T, -T), (W + T, H + T, 0), "wall", "wall")
-sc.box((WX0, -T, -T), (WX1, WY0, 0), "wall", "wall")
-sc.box((WX0, WY1, -T), (WX1, H + T, 0), "wall", "wall")
+sc.window_room(W, H, D, T, (WX0, WX1, WY0, WY1))
 
 sc.comment("Table (top 1.4 m x 0.9 m at 0.75 m) and legs")
-TX0, TX1, TZ0, TZ1 = 1.5, 2.9, 1.3, 2.2
-sc.box((TX0, 0.72, TZ0), (TX1, 0.76, TZ1), "table_top", "table")
-for lx in (TX0 + 0.05, TX1 - 0.11):
-    for lz in (TZ0 + 0.05, TZ1 - 0.11):
-        sc.box((lx, 0, lz), (lx + 0.06, 0.72, lz + 0.06), "wood", "table")
+sc.table(1.5, 2.9, 1.3, 2.2, "table_top", "wood")
 
 sc.comment("On the table: a glass sphere, a glass block and a chrome ball")
 sc.raw("""    <shape type="sphere" id="glass_sphere">

@@ -20,16 +20,8 @@ comment = f"""<!--
 
 sc = Scene(comment, origin=(5.5, 1.45, 4.8), target=(2.0, 0.75, 0.9), fov=72)
 
-sc.comment("Outside: sun, sky and ground")
-sc.raw(f"""    <emitter type="directional" id="sun">
-        <vector name="direction" value="0.3, -0.6, 0.75"/>
-        <rgb name="irradiance" value="6.0, 5.6, 5.0"/>
-    </emitter>
-    <emitter type="constant" id="sky">
-        <rgb name="radiance" value="0.45, 0.6, 0.9"/>
-    </emitter>""")
-sc.diffuse("ground", (0.25, 0.3, 0.2))
-sc.rect((3, -T - 0.01, -4.8), (7, 5), "y", 1, "ground", prefix="ground")  # 14 m x 10 m, kept small: it sets the scene bbox
+sc.sun_sky_ground((0.3, -0.6, 0.75), (6.0, 5.6, 5.0), (0.45, 0.6, 0.9),
+                  (3, -T - 0.01, -4.8), (7, 5))  # ground 14 m x 10 m, kept small: it sets the scene bbox
 
 sc.comment("Interior materials")
 sc.diffuse("wall", (0.78, 0.75, 0.7))
@@ -44,16 +36,7 @@ book_cols = [(0.7, 0.2, 0.15), (0.2, 0.35, 0.65), (0.25, 0.55, 0.3), (0.75, 0.7,
 for k, c in enumerate(book_cols):
     sc.diffuse(f"book{k}", c)
 
-sc.comment("The shell: floor, ceiling, three solid walls and the window wall in four pieces")
-sc.box((-T, -T, -T), (W + T, 0, D + T), "floor", "floor")
-sc.box((-T, H, -T), (W + T, H + T, D + T), "ceiling", "ceiling")
-sc.box((-T, -T, -T), (0, H + T, D + T), "wall", "wall")           # left   (x = 0)
-sc.box((W, -T, -T), (W + T, H + T, D + T), "wall", "wall")        # right  (x = W)
-sc.box((-T, -T, D), (W + T, H + T, D + T), "wall", "wall")        # back   (z = D, behind the camera)
-sc.box((-T, -T, -T), (WX0, H + T, 0), "wall", "wall")              # window wall, left of the window
-sc.box((WX1, -T, -T), (W + T, H + T, 0), "wall", "wall")           # right of the window
-sc.box((WX0, -T, -T), (WX1, WY0, 0), "wall", "wall")               # below the window (sill)
-sc.box((WX0, WY1, -T), (WX1, H + T, 0), "wall", "wall")            # above the window (lintel)
+sc.window_room(W, H, D, T, (WX0, WX1, WY0, WY1))
 
 sc.comment("Radiator under the window: 12 thin fins and two pipes")
 for k in range(12):
@@ -96,11 +79,7 @@ for y in (1.3, 1.8):
         x += w + rng.uniform(0.05, 0.2)
 
 sc.comment("Table (top 1.6 m x 1.0 m at 0.75 m) and four legs")
-TX0, TX1, TZ0, TZ1 = 2.6, 4.2, 2.1, 3.1
-sc.box((TX0, 0.72, TZ0), (TX1, 0.76, TZ1), "light_wood", "table")
-for lx in (TX0 + 0.05, TX1 - 0.11):
-    for lz in (TZ0 + 0.05, TZ1 - 0.11):
-        sc.box((lx, 0, lz), (lx + 0.06, 0.72, lz + 0.06), "light_wood", "table")
+sc.table(2.6, 4.2, 2.1, 3.1, "light_wood", "light_wood")
 
 def chair(cx, cz, back_dir):
     """Seat 0.44 m square at 0.45 m, four legs, a back on the side back_dir ('-z', '+z', '-x', '+x')."""

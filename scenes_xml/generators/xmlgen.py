@@ -113,6 +113,51 @@ class Scene:
             f'        </transform>\n'
             f'        <ref id="{bsdf}"/>\n' + self.emitter_xml(radiance) + '    </shape>')
 
+    def sun_sky_ground(self, sun_direction, sun_irradiance, sky_radiance, ground_center,
+                       ground_half):
+        """What a window looks out on: a directional sun, a constant sky and a diffuse ground
+        rectangle facing up (centre, half extents in x and z; it sets the scene's bounding box,
+        so keep it small). The sun's and sky's values are written as Python prints them
+        (``5.0``, not :func:`vec`'s ``5``)."""
+        def exact(v):
+            return ", ".join(str(x) for x in v)
+
+        self.comment("Outside: sun, sky and ground")
+        self.raw(f"""    <emitter type="directional" id="sun">
+        <vector name="direction" value="{exact(sun_direction)}"/>
+        <rgb name="irradiance" value="{exact(sun_irradiance)}"/>
+    </emitter>
+    <emitter type="constant" id="sky">
+        <rgb name="radiance" value="{exact(sky_radiance)}"/>
+    </emitter>""")
+        self.diffuse("ground", (0.25, 0.3, 0.2))
+        self.rect(ground_center, ground_half, "y", 1, "ground", prefix="ground")
+
+    def window_room(self, W, H, D, T, window):
+        """A closed room, inside x in [0, W], y in [0, H], z in [0, D], of overlapping boxes T
+        thick (no light leaks at the edges): floor, ceiling, three solid walls and the wall
+        z = 0 in four pieces around the opening ``window`` = (x0, x1, y0, y1). Materials
+        "floor", "ceiling" and "wall"."""
+        WX0, WX1, WY0, WY1 = window
+        self.comment("The shell: floor, ceiling, three solid walls and the window wall in four pieces")
+        self.box((-T, -T, -T), (W + T, 0, D + T), "floor", "floor")
+        self.box((-T, H, -T), (W + T, H + T, D + T), "ceiling", "ceiling")
+        self.box((-T, -T, -T), (0, H + T, D + T), "wall", "wall")           # left   (x = 0)
+        self.box((W, -T, -T), (W + T, H + T, D + T), "wall", "wall")        # right  (x = W)
+        self.box((-T, -T, D), (W + T, H + T, D + T), "wall", "wall")        # back   (z = D)
+        self.box((-T, -T, -T), (WX0, H + T, 0), "wall", "wall")              # window wall, left of the window
+        self.box((WX1, -T, -T), (W + T, H + T, 0), "wall", "wall")           # right of the window
+        self.box((WX0, -T, -T), (WX1, WY0, 0), "wall", "wall")               # below the window (sill)
+        self.box((WX0, WY1, -T), (WX1, H + T, 0), "wall", "wall")            # above the window (lintel)
+
+    def table(self, x0, x1, z0, z1, top, legs):
+        """A table: a top [x0, x1] x [z0, z1] from 0.72 m to 0.76 m (material ``top``) on four
+        6 cm square legs 5 cm in from its corners (material ``legs``)."""
+        self.box((x0, 0.72, z0), (x1, 0.76, z1), top, "table")
+        for lx in (x0 + 0.05, x1 - 0.11):
+            for lz in (z0 + 0.05, z1 - 0.11):
+                self.box((lx, 0, lz), (lx + 0.06, 0.72, lz + 0.06), legs, "table")
+
     def point_light(self, pos, intensity):
         self.out.append(
             f'    <emitter type="point" id="{self._id("point_light")}">\n'

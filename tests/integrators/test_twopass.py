@@ -198,18 +198,25 @@ def test_furnace_is_exact():
     assert abs(means.mean() - 2.0) < 4 * se + allowance, (means, chosen)
 
 
+def assert_technique_view(scene, props, colour):
+    """Render ``scene`` at 1 spp with twopass forced by ``props`` (a debug view among them):
+    more than half the pixels are ``colour`` (the forced technique), all others grey (path
+    traced) or black (no surface)."""
+    tp = mi.load_dict({"type": "twopass", **props})
+    img = render(scene, tp, spp=1)[..., :3].reshape(-1, 3)
+    technique = np.all(np.isclose(img, colour), axis=1)
+    grey = np.all(np.isclose(img, [0.5, 0.5, 0.5]), axis=1)
+    black = np.all(img == 0, axis=1)
+    assert technique.mean() > 0.5
+    assert np.all(technique | grey | black)
+
+
 def test_debug_view_colours_the_technique():
     """Forced to the radiosity gather on the box: walls the radiosity caches are blue, the
     rest grey (path traced), the background black."""
-    scene = mi.load_dict(hs.box())
-    tp = mi.load_dict({"type": "twopass", "direct": "emitter", "indirect": "radiosity",
-                       "debug": "indirect_technique"})
-    img = render(scene, tp, spp=1)[..., :3].reshape(-1, 3)
-    blue = np.all(np.isclose(img, [0.0, 0.35, 0.9]), axis=1)
-    grey = np.all(np.isclose(img, [0.5, 0.5, 0.5]), axis=1)
-    black = np.all(img == 0, axis=1)
-    assert blue.mean() > 0.5
-    assert np.all(blue | grey | black)
+    assert_technique_view(mi.load_dict(hs.box()),
+                          {"direct": "emitter", "indirect": "radiosity",
+                           "debug": "indirect_technique"}, [0.0, 0.35, 0.9])
 
 
 def test_direct_debug_view_shows_spike_lists_on_a_scene_with_many_lights():
@@ -217,14 +224,8 @@ def test_direct_debug_view_shows_spike_lists_on_a_scene_with_many_lights():
     has a list, grey elsewhere, black where the camera sees no surface (the window)."""
     scene = mi.load_file(os.path.join(hs.__file__.rsplit("tests", 1)[0], "scenes_xml",
                                       "mixed_room.xml"), res=16)
-    tp = mi.load_dict({"type": "twopass", "direct": "spike", "indirect": "path",
-                       "debug": "direct_technique"})
-    img = render(scene, tp, spp=1)[..., :3].reshape(-1, 3)
-    orange = np.all(np.isclose(img, [0.9, 0.45, 0.0]), axis=1)
-    grey = np.all(np.isclose(img, [0.5, 0.5, 0.5]), axis=1)
-    black = np.all(img == 0, axis=1)
-    assert orange.mean() > 0.5
-    assert np.all(orange | grey | black)
+    assert_technique_view(scene, {"direct": "spike", "indirect": "path",
+                                  "debug": "direct_technique"}, [0.9, 0.45, 0.0])
 
 
 def test_a_render_in_passes_is_chosen_for_its_whole_spp(tiny_scene_file, tmp_path, monkeypatch):
