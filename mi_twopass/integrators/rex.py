@@ -11,7 +11,8 @@ import drjit as dr
 import mitsuba as mi
 
 from .. import units
-from ..prepass.rex_textures import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes
+from ..prepass.rex_textures import (KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes,
+                                     photon_budget)
 from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .pathtrace import (by_component, emission_mis, emitter_sample_mis, path_start,
@@ -20,11 +21,9 @@ from .pathtrace import (by_component, emission_mis, emitter_sample_mis, path_sta
 DEBUG_MODES = ("none", "leaves", "edges", "buckets")
 DIRECT_MODES = ("rex", "shadow")
 
-#: photons per film pixel when ``photons`` is not given
-DEFAULT_PHOTONS_PER_PIXEL = 256.0
-#: bounds of an automatic budget (the photon records of 4M photons take ~250 MB)
+#: bounds of a budget from ``photons_per_pixel``
 MIN_PHOTONS = 1 << 16
-MAX_AUTO_PHOTONS = 1 << 22
+MAX_PIXEL_PHOTONS = 1 << 22
 
 
 class RexIntegrator(TwoPassIntegrator):
@@ -105,9 +104,28 @@ class RexIntegrator(TwoPassIntegrator):
     at equal time has ≈ 0.018 and ≈ 0.013. With 4M photons "shadow" reaches 0.0041 (9.5 s): at
     long times path tracing, unbiased, wins.
 
-    **Cost.** Photons cost about one ray per bounce; the prepass of 1M photons takes 1–1.7 s on
-    two CPU cores (LLVM), and its records (26 bytes per deposit) are freed after the build. The
-    rexes themselves take 8 + 24 bytes per node and depth class (``cache_bytes``).
+    **Photon budget: what the image needs.** Unless ``photons`` (or ``photons_per_pixel``) is
+    given, the size pass counts the rex buckets the image needs — for every pixel that sees a
+    rex (through specular and glossy bounces), (pixel side / bucket side at its cap)², about 1–4
+    buckets per visible pixel with ``bucket_pixels`` = 1 — and a probe shoot of 65536 photons
+    measures how many deposits a photon leaves on the rexes the eye sees. The budget is
+    split_limit × that bucket count / that rate: the photons with which every bucket the eye
+    sees can split down to the pixel footprint (past that, photons only refine buckets the
+    screen cannot show). It lies within [2^16, 2^24] photons and keeps the records below 8M
+    (memory). So a closed Cornell box at 128² shoots 0.31M photons (2.4 deposits each), at
+    256² 1.2M, and ``caustic.xml``, whose photons mostly leave the scene (0.14 deposits each),
+    4.6M at 128² and the 2^24 cap at 256²; at 1920×1080 the record cap binds (3.4M photons).
+    A scene mostly seen through glossy or non-Lambertian surfaces needs few.
+
+    **Cost.** Photons cost about one ray per bounce. The emission samples are made in Dr.Jit
+    (no per-photon numpy), the light quadtree has at most 2^18 leaves, and the rex build sorts
+    the records once by a Morton key so that each level costs its nodes, not its photons.
+    Measured on two CPU cores (LLVM, warm kernel cache; the prepass alone, as
+    ``python -m mi_twopass bench --prepass`` times it): the whole prepass takes 0.8 s on the
+    Cornell box at 128² (was 10 s with 256 photons per pixel), 1.6 s at 256² (was 13 s), 7 s
+    at 1920×1080 (was 15 s; peak memory 1.3 GB, was 3.8 GB), and 2.6 s for 17M photons on
+    ``caustic.xml`` at 256² (4M photons took 4 s). The records (26 bytes per deposit) are freed after the build; the
+    rexes take 8 + 24 bytes per node and depth class (``cache_bytes``).
 
     **Emission and scale.** Area lights emit from ``sample_position`` with cosine-weighted
     directions, infinite emitters (constant, envmap, sunsky, directional) from a disk facing
@@ -138,11 +156,12 @@ class RexIntegrator(TwoPassIntegrator):
 
      * - photons
        - |int|
-       - Photons shot in the light pass (shared among the lights by power). Default:
-         ``photons_per_pixel`` × the first sensor's pixel count, within [2^16, 2^22].
+       - Photons shot in the light pass (shared among the lights by power). Default: what the
+         image needs (above, "Photon budget").
      * - photons_per_pixel
        - |float|
-       - Default photon budget per film pixel (default: 256).
+       - If given (> 0) and ``photons`` is not: ``photons_per_pixel`` × the first sensor's
+         pixel count, within [2^16, 2^22] (the budget rule before 2026-11-25 was 256).
      * - split_limit
        - |int|
        - A rex bucket holding more photons than this splits into four (default: 16; the paper
@@ -153,7 +172,7 @@ class RexIntegrator(TwoPassIntegrator):
      * - bucket_pixels
        - |float|
        - Size-pass cap: the smallest bucket is about this many pixels wide on screen
-         (default: 0.5).
+         (default: 1; it also sets the automatic photon budget: half of it, 4× the photons).
      * - direct
        - |string|
        - "shadow" (default): direct light by shadow rays with MIS, rexes hold the rest;
@@ -194,13 +213,12 @@ class RexIntegrator(TwoPassIntegrator):
         self.photons = read_int(props, "photons", -1, minimum=-1)
         if self.photons == 0:
             raise ValueError("photons=0: must be >= 1 (or -1 for the default)")
-        self.photons_per_pixel = read_float(props, "photons_per_pixel",
-                                            DEFAULT_PHOTONS_PER_PIXEL, minimum=0.0, strict=True)
+        self.photons_per_pixel = read_float(props, "photons_per_pixel", 0.0, minimum=0.0)
         self.split_limit = read_int(props, "split_limit", 16, minimum=1)
         self.max_level = read_int(props, "max_level", 14, minimum=0)
         if self.max_level > MAX_LEVEL:
             raise ValueError(f"max_level={self.max_level}: must be <= {MAX_LEVEL}")
-        self.bucket_pixels = read_float(props, "bucket_pixels", 0.5, minimum=0.0, strict=True)
+        self.bucket_pixels = read_float(props, "bucket_pixels", 1.0, minimum=0.0, strict=True)
         self.direct = read_choice(props, "direct", "shadow", DIRECT_MODES)
         self.light_levels = read_int(props, "light_levels", 3, minimum=0)
         self.light_split_dist = read_float(props, "light_split_dist", 0.05, minimum=0.0)
@@ -212,19 +230,28 @@ class RexIntegrator(TwoPassIntegrator):
                 self.max_depth, self.rr_depth)
 
     # -- prepass ----------------------------------------------------------------------------
-    def photon_budget(self, scene) -> int:
+    def settings_photons(self, scene) -> int:
+        """``photons``, else ``photons_per_pixel`` × the first sensor's pixels (within
+        [2^16, 2^22]), else 0: the prepass then shoots what the image needs."""
         if self.photons > 0:
             return self.photons
+        if self.photons_per_pixel <= 0:
+            return 0
         sensors = scene.sensors()
         pixels = 256 * 256
         if len(sensors):
             size = sensors[0].film().crop_size()
             pixels = int(size[0]) * int(size[1])
-        return int(min(MAX_AUTO_PHOTONS,
+        return int(min(MAX_PIXEL_PHOTONS,
                        max(MIN_PHOTONS, round(self.photons_per_pixel * pixels))))
 
+    def photon_budget(self, scene, seed=0, sensor=None) -> int:
+        """The photons the prepass will shoot (the image's need is measured: size pass and probe
+        shoot, :func:`~mi_twopass.prepass.rex_textures.photon_budget`)."""
+        return photon_budget(scene, self.rex_settings(scene), self.prepass_seed(seed), sensor)
+
     def rex_settings(self, scene) -> RexSettings:
-        return RexSettings(photons=self.photon_budget(scene), split_limit=self.split_limit,
+        return RexSettings(photons=self.settings_photons(scene), split_limit=self.split_limit,
                            max_level=self.max_level, bucket_pixels=self.bucket_pixels,
                            direct=self.direct, max_depth=self.max_depth, rr_depth=self.rr_depth,
                            light_levels=self.light_levels,

@@ -25,10 +25,11 @@ The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
    farther away than ``light_split_dist``, and only where one of the two hits is seen by the eye
    (size pass). Neighbours of split nodes one level coarser are split too (the paper's restricted
    quadtree). The other 2-D factor (the position on an area light) is stratified by padding: one
-   jittered stratum of a randomly permuted grid per ray. The tree grows to a quarter of the
-   light's photon budget (shared among lights by power); then every leaf shoots its final photons
-   afresh, one jittered photon per quadrant (unbiased: the tree depends only on the pilot rays),
-   each carrying Φ = weight · |quadrant| / reps.
+   jittered stratum of a randomly permuted grid per ray. The tree grows to 1/:data:`LEAF_PHOTONS`
+   of the light's photon budget (shared among lights by power; the nodes of the deepest level
+   send no pilot, nothing would read it); then every leaf shoots its final photons afresh, ``reps``
+   jittered photons per quadrant (unbiased: the tree depends only on the pilot rays), each
+   carrying Φ = weight · |quadrant| / reps.
    Photons follow delta and glossy bounces (``bsdf.sample`` in ``TransportMode.Importance``:
    Fresnel-weighted reflection or refraction) and, at every diffuse vertex, deposit their flux and
    continue diffusely with Russian roulette: L(S*D)*S*E is complete (the simple alternative to
@@ -67,7 +68,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -104,8 +105,23 @@ MAX_DEPTH_CLASSES = 8
 PHOTON_RR_MAX = 0.999
 #: final photons per Dr.Jit launch
 PHOTON_BATCH = 1 << 20
+#: final photons per light-quadtree leaf (4 per quadrant): the tree's size is the budget / this
+LEAF_PHOTONS = 16
+#: the light quadtrees of all emitters together have at most about this many leaves (pilot
+#: rays and numpy bookkeeping per node; more photons shoot more rounds per leaf)
+MAX_LIGHT_LEAVES = 1 << 18
+#: photons of the probe shoot that measures the deposits per photon (:func:`photon_need`)
+PROBE_PHOTONS = 1 << 16
+#: bounds of an automatic photon budget
+MIN_PHOTONS = 1 << 16
+MAX_AUTO_PHOTONS = 1 << 24
+#: an automatic budget keeps the photon records below this many (26 bytes each, and the
+#: build's sort keys and indices: ~100 bytes per record at the build's peak)
+MAX_RECORDS = 8_000_000
 #: stratified points per rex leaf that test whether closed geometry buries it
 EXPOSURE_PROBES = 4
+#: rex leaves probed per batch (× EXPOSURE_PROBES lanes, ~100 bytes each in numpy)
+EXPOSURE_BATCH = 1 << 17
 #: delta / glossy bounces a pilot or size ray follows before giving up
 MAX_CHAIN = 16
 
@@ -114,7 +130,7 @@ _BACK = int(mi.BSDFFlags.BackSide)
 _UV_SHAPES = ("Rectangle", "Sphere", "Disk", "Cylinder")
 
 # seeds of the independent streams, so that passes never share random numbers
-_SALT_SIZE, _SALT_PROBE, _SALT_PILOT, _SALT_PHOTON, _SALT_NUMPY = 1, 2, 3, 4, 5
+_SALT_SIZE, _SALT_PROBE, _SALT_PILOT, _SALT_PHOTON, _SALT_NUMPY, _SALT_PROBE_PHOTON = 1, 2, 3, 4, 5, 6
 
 
 def depth_classes(max_depth: int) -> int:
@@ -138,10 +154,10 @@ def _sampler(seed, n):
 class RexSettings:
     """Every parameter of the rex prepass (the integrator's docstring explains each)."""
 
-    photons: int = 1 << 20
+    photons: int = 0  # ≤ 0: what the image needs (photon_need)
     split_limit: int = 16
     max_level: int = 14
-    bucket_pixels: float = 0.5
+    bucket_pixels: float = 1.0
     direct: str = "rex"  # "rex": rexes hold direct light; "shadow": indirect + caustics only
     max_depth: int = -1
     rr_depth: int = 5
@@ -348,13 +364,6 @@ class RexTables:
         iy = dr.minimum(mi.UInt32(uv.y * fres), res - 1)
         return dr.gather(mi.UInt32, self.d_size_offset, rex, active) + iy * res + ix
 
-    def size_cell_np(self, rex, u, v):
-        level = self.rex_size_level[rex].astype(np.int64)
-        res = np.left_shift(1, level)
-        ix = np.minimum((u * res).astype(np.int64), res - 1)
-        iy = np.minimum((v * res).astype(np.int64), res - 1)
-        return self.rex_size_offset[rex] + iy * res + ix
-
     def bucket_area(self, rex, level, ix, iy):
         """Exact world area of the parameter square [ix, ix+1]·h × [iy, iy+1]·h, h = 2^-level."""
         rex = np.asarray(rex, np.int64)
@@ -388,6 +397,7 @@ def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max
     t_total = mi.Float(0.0)
     depth = mi.UInt32(0)
     n_rays = mi.UInt32(0)
+    buckets = mi.Float(0.0)  # cap-level buckets per pixel where the ray met a rex
     active = mi.Bool(True)
     while dr.hint(active, label="rex_size_pass"):
         si = scene.ray_intersect(ray, active)
@@ -406,9 +416,15 @@ def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max
         vy = vy - ray.d * (dr.dot(vy, n) / dn)
         area_world = dr.norm(dr.cross(vx, vy))
         J = tables.jacobian(si, rex, at_rex)
-        side = dr.sqrt(dr.maximum(area_world, 1e-30) / dr.maximum(J, 1e-30)) * bucket_pixels
+        pixel = dr.sqrt(dr.maximum(area_world, 1e-30) / dr.maximum(J, 1e-30))
+        side = pixel * bucket_pixels
         level = dr.ceil(dr.log2(dr.rcp(dr.maximum(side, 1e-30))))
-        level = mi.UInt32(dr.clip(dr.select(dr.isfinite(level), level, 0.0), 0.0, max_level))
+        level = dr.clip(dr.select(dr.isfinite(level), level, 0.0), 0.0, max_level)
+        # buckets of side 2^-level per pixel of side `pixel` (both in the parameter square;
+        # at most the whole square per pixel)
+        per_pixel = dr.minimum(pixel, 1.0) * dr.exp2(level)
+        buckets = dr.select(at_rex, dr.minimum(per_pixel * per_pixel, 1e6), buckets)
+        level = mi.UInt32(level)
         cell = tables.size_cell(rex, uv, at_rex)
         dr.scatter_reduce(dr.ReduceOp.Max, caps, level + 1, cell, at_rex)
 
@@ -422,20 +438,24 @@ def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max
         active &= ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse) | \
             mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) | \
             mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy)
-    return n_rays
+    return n_rays, buckets
 
 
 def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor=None):
     """Per size cell, the finest rex level worth resolving: the finest any eye sample there asked
     for (footprints through curved mirrors and lenses are underestimated: finer, never coarser).
 
-    Returns (cap level per size cell, seen per rex, eye rays traced)."""
+    Returns (cap level per size cell, seen per rex, eye rays traced, the image's need): the
+    need is a dict of ``visible_pixels`` (pixels whose eye ray reaches a rex, through specular
+    and glossy bounces) and ``visible_buckets`` (the rex buckets at the cap those pixels cover:
+    Σ over them of (pixel side / bucket side)², both in the rex's parameter square)."""
     if sensor is None:
         sensors = scene.sensors()
         sensor = sensors[0] if len(sensors) else None
     if sensor is None or tables.count == 0:
         cap = np.full(tables.size_cells, min(8, settings.max_level), np.int64)
-        return cap, np.ones(tables.count, bool), 0
+        return cap, np.ones(tables.count, bool), 0, {"visible_pixels": 0.0,
+                                                     "visible_buckets": 0.0}
     film = sensor.film()
     w, h = (int(x) for x in film.crop_size())
     spp = settings.size_spp
@@ -449,10 +469,13 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
     spread_o = (ray.o_x - ray.o, ray.o_y - ray.o)
     spread_d = (ray.d_x - ray.d, ray.d_y - ray.d)
     caps = dr.zeros(mi.UInt32, tables.size_cells + 1)
-    n_rays = _size_trace(scene, tables, mi.Ray3f(ray), spread_o, spread_d, caps,
-                         mi.Float(settings.bucket_pixels), float(settings.max_level), sampler)
+    n_rays, buckets = _size_trace(scene, tables, mi.Ray3f(ray), spread_o, spread_d, caps,
+                                  mi.Float(settings.bucket_pixels), float(settings.max_level),
+                                  sampler)
     caps_np = np.asarray(caps, np.int64)[:-1] - 1  # −1: unseen
     rays = int(dr.sum(n_rays)[0])
+    need = {"visible_pixels": float(dr.count(buckets > 0)[0]) / spp,
+            "visible_buckets": float(dr.sum(buckets)[0]) / spp}
 
     # unseen cells of a seen rex take the rex's coarsest seen level; unseen rexes level 0
     rex_of_cell = np.repeat(np.arange(tables.count), 4 ** tables.rex_size_level.astype(np.int64))
@@ -462,7 +485,7 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
     seen = coarsest != np.iinfo(np.int64).max
     fill = np.where(seen, coarsest, 0)
     cap = np.where(seen_cell, caps_np, fill[rex_of_cell])
-    return cap, seen, rays
+    return cap, seen, rays, need
 
 
 # ---------------------------------------------------------------------------------------------
@@ -777,13 +800,16 @@ def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim
     pilot_rays = 0
     thresh2 = (settings.light_split_dist * bounds.diagonal) ** 2
     for step in range(settings.light_levels + 1):
+        first = len(tree.em)
+        if step == settings.light_levels:  # the deepest nodes are never marked: no pilot
+            z = np.zeros(len(em))
+            tree.append(em, lev, ix, iy, z.astype(np.uint32), np.zeros((len(em), 3), np.float32),
+                        z.astype(bool), z.astype(bool))
+            break
         sig, pos, hit, seen, nr = _pilot(scene, bounds, tables, seen_rex, adapt_dim, em, lev,
                                          ix, iy, rng, hash31(seed, _SALT_PILOT, step), n_em)
         pilot_rays += nr
-        first = len(tree.em)
         tree.append(em, lev, ix, iy, sig, pos, hit, seen)
-        if step == settings.light_levels:
-            break
         # light marking (§4.1): the nodes just traced, against their four neighbours
         cand = np.arange(first, len(tree.em))
         cand = cand[tree.lev[cand] < top[tree.em[cand]]]
@@ -834,82 +860,252 @@ def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim
     return tree, pilot_rays
 
 
-def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct):
-    """Adapt the light quadtrees, then shoot the final photons; returns records and stats."""
+class FinalShoot:
+    """The final photons of the light pass, generated in Dr.Jit batch by batch.
+
+    Emitter e owns the lanes [off_e, off_e+1): ``reps_e`` rounds of one photon per quadrant of
+    each of its light-quadtree leaves (leaf-major). A lane's adapted 2-D sample is jittered in its
+    quadrant; the other 2-D sample (the position on an area light, the disk of an environment)
+    takes one stratum of a ⌈√c_e⌉² grid (c_e the emitter's lanes): lane k of the emitter the
+    k-th of a random permutation of the strata (:func:`permute`, keyed per emitter; each lane's
+    stratum uniform, hence unbiased, as the random padding of :func:`_padded`), jittered inside
+    it. Nothing is built per photon in numpy."""
+
+    def __init__(self, tree, budgets, adapt_dim, seed):
+        rng = np.random.default_rng(seed)
+        E = len(budgets)
+        leaves = np.nonzero(tree.leaf)[0]
+        leaves = leaves[np.argsort(tree.em[leaves], kind="stable")]  # grouped by emitter
+        n_leaves = np.bincount(tree.em[leaves], minlength=E)
+        reps = np.maximum(1, np.round(budgets / np.maximum(4 * n_leaves, 1))).astype(np.int64)
+        per_em = 4 * reps * n_leaves
+        off = np.concatenate([[0], np.cumsum(per_em)]).astype(np.int64)
+        self.lanes = int(off[-1])
+        if self.lanes >= 1 << 32:
+            raise ValueError(f"{self.lanes} photons: at most 2^32 - 1")
+        m = np.ceil(np.sqrt(np.maximum(per_em, 1))).astype(np.int64)
+        strata = m * m
+        if strata.max(initial=0) >= 1 << 32:
+            raise ValueError("too many photons for one emitter (at most 2^32 strata)")
+
+        def u32(a):
+            return mi.UInt32(np.asarray(a, np.uint32))
+        self.E = E
+        self.d_off = u32(off)
+        self.d_leaf_off = u32(np.concatenate([[0], np.cumsum(n_leaves)]))
+        self.d_reps = u32(reps)
+        self.d_m, self.d_strata = u32(m), u32(strata)
+        self.d_key = u32(rng.integers(0, 1 << 32, E, dtype=np.uint64))
+        self.d_adapt3 = mi.Bool(np.asarray(adapt_dim) == 3)
+        self.d_lev, self.d_ix, self.d_iy = u32(tree.lev[leaves]), u32(tree.ix[leaves]), \
+            u32(tree.iy[leaves])
+
+    def samples(self, start, size, sampler):
+        """(emitter, sample2, sample3, weight scale |quadrant| / reps) of lanes
+        [start, start + size); the jitter comes from ``sampler``."""
+        g = dr.arange(mi.UInt32, start, start + size)
+        off = self.d_off
+        e = dr.binary_search(0, self.E - 1,
+                             lambda i: dr.gather(mi.UInt32, off, i + 1) <= g)
+        local = g - dr.gather(mi.UInt32, off, e)
+        # (divisors kept ≥ 1: LLVM divides masked-off lanes of a packet too, and an integer
+        # division by zero there is a SIGFPE)
+        reps = dr.maximum(dr.gather(mi.UInt32, self.d_reps, e), 1)
+        leaf = dr.gather(mi.UInt32, self.d_leaf_off, e) + local // (4 * reps)
+        q = local & 3
+        lev = dr.gather(mi.UInt32, self.d_lev, leaf)
+        h = dr.rcp(mi.Float(mi.UInt32(2) << lev))
+        j = sampler.next_2d()
+        s_adapt = mi.Point2f((mi.Float(2 * dr.gather(mi.UInt32, self.d_ix, leaf) + (q & 1)) + j.x) * h,
+                             (mi.Float(2 * dr.gather(mi.UInt32, self.d_iy, leaf) + (q >> 1)) + j.y) * h)
+        m = dr.maximum(dr.gather(mi.UInt32, self.d_m, e), 1)
+        stratum = permute(local, dr.maximum(dr.gather(mi.UInt32, self.d_strata, e), 1),
+                          dr.gather(mi.UInt32, self.d_key, e))
+        j = sampler.next_2d()
+        fm = mi.Float(m)
+        s_other = mi.Point2f((mi.Float(stratum % m) + j.x) / fm, (mi.Float(stratum // m) + j.y) / fm)
+        s_adapt = dr.minimum(s_adapt, ONE_MINUS_EPS)
+        s_other = dr.minimum(s_other, ONE_MINUS_EPS)
+        use3 = dr.gather(mi.Bool, self.d_adapt3, e)
+        s2 = dr.select(use3, s_other, s_adapt)
+        s3 = dr.select(use3, s_adapt, s_other)
+        return e, s2, s3, h * h / mi.Float(reps)
+
+
+@dr.syntax
+def permute(i, n, key):
+    """Kensler's hashed permutation (Pixar TM 13-01, "Correlated Multi-Jittered Sampling",
+    ``permute``): index ``i`` < ``n`` to its place in a pseudo-random permutation of [0, n)
+    chosen by ``key`` (UInt32 arrays; a bijection on the next power of two, cycle-walked into
+    [0, n))."""
+    w = n - 1
+    for shift in (1, 2, 4, 8, 16):
+        w |= w >> shift
+    i = mi.UInt32(i)
+    go = mi.Bool(True)
+    while dr.hint(go, label="permute"):
+        i ^= key
+        i *= 0xE170893D
+        i ^= key >> 16
+        i ^= (i & w) >> 4
+        i ^= key >> 8
+        i *= 0x0929EB3F
+        i ^= key >> 23
+        i ^= (i & w) >> 1
+        i *= 1 | key >> 27
+        i *= 0x6935FA69
+        i ^= (i & w) >> 11
+        i *= 0x74DCB303
+        i ^= (i & w) >> 2
+        i *= 0x9E501CC3
+        i ^= (i & w) >> 2
+        i *= 0xC860A3DF
+        i &= w
+        i ^= i >> 5
+        go = i >= n
+    return (i + key) % n
+
+
+def empty_records() -> dict:
+    """Photon records (rex, u, v, Φ, depth of the hit), none of them."""
+    return {"rex": np.zeros(0, np.uint32), "u": np.zeros(0, np.float32),
+            "v": np.zeros(0, np.float32), "flux": np.zeros((0, 3), np.float32),
+            "depth": np.zeros(0, np.uint16)}
+
+
+def emitter_budgets(power, photons: int):
+    """Photons per emitter, shared by power (at least 16 for every emitter that emits)."""
+    total = float(power.sum()) if len(power) else 0.0
+    if total <= 0 or not np.isfinite(total):
+        return None
+    share = np.where(np.isfinite(power) & (power > 0), power, 0.0) / total
+    return np.where(share > 0, np.maximum(np.round(photons * share), 16), 0).astype(np.int64)
+
+
+def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, bar=None):
+    """Trace the photons of ``shoot`` (a :class:`FinalShoot`), :data:`PHOTON_BATCH` per Dr.Jit
+    launch; returns (records, rays traced, photons whose first ray hit the scene)."""
+    max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
+    parts = {k: [] for k in empty_records()}
+    rays = hits = 0
+    for b, start in enumerate(range(0, shoot.lanes, PHOTON_BATCH)):
+        size = min(PHOTON_BATCH, shoot.lanes - start)
+        capacity = 3 * size
+        while True:
+            sampler = _sampler(hash31(seed, salt, b), size)
+            em, s2, s3, scale = shoot.samples(start, size, sampler)
+            ray, w = emitter_rays(scene, tables.bounds, em, s2, s3)
+            flux = dr.select(dr.isfinite(w), w, 0.0) * scale
+            recs = (dr.zeros(mi.UInt32, capacity), dr.zeros(mi.Float, capacity),
+                    dr.zeros(mi.Float, capacity), dr.zeros(mi.Float, 3 * capacity),
+                    dr.zeros(mi.UInt32, capacity))
+            counter = dr.zeros(mi.UInt32, 1)
+            n_rays, first_hit = _photon_trace(
+                scene, tables, ray, flux, sampler, recs, counter, capacity,
+                mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth))
+            dr.eval(n_rays, first_hit, *recs)
+            count = int(counter[0])
+            if count <= capacity:
+                break
+            capacity = count  # deterministic: the same seed gives the same records
+        rays += int(dr.sum(n_rays)[0])
+        hits += int(dr.count(first_hit)[0])
+        # compact records, 26 bytes each (copies: a view would keep the whole capacity alive)
+        parts["rex"].append(np.asarray(recs[0], np.uint32)[:count].copy())
+        parts["u"].append(np.asarray(recs[1], np.float32)[:count].copy())
+        parts["v"].append(np.asarray(recs[2], np.float32)[:count].copy())
+        parts["flux"].append(np.asarray(recs[3], np.float32)[:3 * count].reshape(-1, 3).copy())
+        parts["depth"].append(np.minimum(np.asarray(recs[4], np.uint32)[:count],
+                                         np.iinfo(np.uint16).max).astype(np.uint16))
+        if bar is not None:
+            bar.update(size)
+    records = {k: np.concatenate(v) if v else empty_records()[k] for k, v in parts.items()}
+    return records, rays, hits
+
+
+def photon_need(scene, tables, seen_rex, need, settings, seed, power, adapt_dim, keep_direct):
+    """The automatic photon budget: enough photons that every rex bucket the image needs (the
+    size pass's ``visible_buckets``, at the cap it sets from the pixel footprints) can collect
+    ``split_limit`` photons, the count at which it splits down to the cap (§3.4.1, §4.1).
+
+    A probe shoot of :data:`PROBE_PHOTONS` stratified photons (no light-quadtree adaptation)
+    measures how many deposits a photon leaves on rexes the eye sees (``seen_rex``); the budget
+    is split_limit × visible_buckets / that rate, within [:data:`MIN_PHOTONS`,
+    :data:`MAX_AUTO_PHOTONS`] and so that the records stay below :data:`MAX_RECORDS` (memory).
+    Returns (photons, stats)."""
+    budgets = emitter_budgets(power, PROBE_PHOTONS)
+    stats = {"visible_pixels": float(need["visible_pixels"]),
+             "visible_buckets": float(need["visible_buckets"])}
+    if budgets is None:
+        return MIN_PHOTONS, stats
+    tree, _ = build_light_tree(scene, tables, seen_rex, replace(settings, light_levels=0), seed,
+                               np.where(budgets > 0, np.maximum(budgets // LEAF_PHOTONS, 1), 0),
+                               adapt_dim, tables.bounds)
+    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 4))
+    records, _, _ = shoot_photons(scene, tables, shoot, settings, seed, _SALT_PROBE_PHOTON,
+                                  keep_direct)
+    n = max(shoot.lanes, 1)
+    seen = seen_rex[records["rex"]] if len(seen_rex) else np.zeros(0, bool)
+    visible_rate = float(np.count_nonzero(seen)) / n
+    all_rate = float(len(records["rex"])) / n
+    want = settings.split_limit * stats["visible_buckets"] / visible_rate \
+        if visible_rate > 0 else 0.0
+    photons = min(max(want, MIN_PHOTONS), MAX_AUTO_PHOTONS)
+    if all_rate > 0:
+        photons = max(min(photons, MAX_RECORDS / all_rate), MIN_PHOTONS)
+    stats.update(photon_need=want, deposits_per_photon=all_rate,
+                 visible_deposits_per_photon=visible_rate)
+    return int(photons), stats
+
+
+def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
+    """The photons :func:`build_rexes` shoots with ``settings``: ``settings.photons``, or where
+    that is ≤ 0 the image's need (:func:`photon_need`; this runs the size pass and the probe
+    shoot, a small part of the prepass)."""
+    if settings.photons > 0:
+        return int(settings.photons)
+    tables = RexTables(scene)
+    _, seen, _, need = size_pass(scene, tables, settings, seed, sensor)
+    power, adapt_dim = probe_emitters(scene, seed, tables.bounds)
+    return photon_need(scene, tables, seen, need, settings, seed, power, adapt_dim,
+                       settings.direct == "rex")[0]
+
+
+def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None):
+    """Adapt the light quadtrees, then shoot the final photons; returns records and stats.
+
+    ``settings.photons`` ≤ 0: the budget the image needs (:func:`photon_need`, from the size
+    pass's ``need``)."""
     t0 = time.perf_counter()
     power, adapt_dim = probe_emitters(scene, seed, bounds)
     stats = {"emitters": len(power), "light_rays": 0, "pilot_rays": 0, "photons": 0,
              "light_hit_percent": 0.0, "light_tree_leaves": 0, "light_tree_max_level": 0}
-    empty = {"rex": np.zeros(0, np.uint32), "u": np.zeros(0, np.float32),
-             "v": np.zeros(0, np.float32), "flux": np.zeros((0, 3), np.float32),
-             "depth": np.zeros(0, np.uint16)}
-    total = float(power.sum()) if len(power) else 0.0
-    if total <= 0 or not np.isfinite(total):
+    photons = settings.photons
+    if photons <= 0:
+        photons, need_stats = photon_need(scene, tables, seen_rex, need or {
+            "visible_pixels": 0.0, "visible_buckets": 0.0}, settings, seed, power, adapt_dim,
+            keep_direct)
+        stats.update(need_stats)
+    budgets = emitter_budgets(power, photons)
+    if budgets is None:
         stats["light_seconds"] = time.perf_counter() - t0
-        return empty, stats
-    share = np.where(np.isfinite(power) & (power > 0), power, 0.0) / total
-    budgets = np.where(share > 0, np.maximum(np.round(settings.photons * share), 16), 0)
-    budgets = budgets.astype(np.int64)
-    # the light quadtree's leaves each shoot 4 photons (one per quadrant)
-    tree, pilot_rays = build_light_tree(scene, tables, seen_rex, settings, seed,
-                                        np.where(budgets > 0, np.maximum(budgets // 4, 1), 0),
-                                        adapt_dim, bounds)
+        return empty_records(), stats
+    # the light quadtree's leaves each shoot LEAF_PHOTONS photons (reps per quadrant), more
+    # where the tree would pass MAX_LIGHT_LEAVES
+    per_leaf = max(LEAF_PHOTONS, -(-int(budgets.sum()) // MAX_LIGHT_LEAVES))
+    tree, pilot_rays = build_light_tree(
+        scene, tables, seen_rex, settings, seed,
+        np.where(budgets > 0, np.maximum(budgets // per_leaf, 1), 0), adapt_dim, bounds)
 
     # final shoot: every leaf afresh, one jittered photon per quadrant, `reps` times so that
     # each emitter uses its budget
-    leaves = np.nonzero(tree.leaf)[0]
-    n_leaves = np.bincount(tree.em[leaves], minlength=len(budgets))
-    reps = np.maximum(1, np.round(budgets / np.maximum(4 * n_leaves, 1))).astype(np.int64)
-    lanes = np.repeat(np.repeat(leaves, reps[tree.em[leaves]]), 4)
-    q = np.tile(np.arange(4), len(lanes) // 4)
-    rng = np.random.default_rng(hash31(seed, _SALT_NUMPY, 2))
-    em = tree.em[lanes]
-    h = np.ldexp(1.0, -(tree.lev[lanes] + 1))
-    scale = h * h / reps[em]
-    s_adapt = np.stack([(2 * tree.ix[lanes] + (q & 1) + rng.random(len(lanes))) * h,
-                        (2 * tree.iy[lanes] + (q >> 1) + rng.random(len(lanes))) * h], 1)
-    s_other = _padded(rng, em, len(budgets))
-    perm = rng.permutation(len(lanes))  # batches mix emitters and tree regions
-
-    max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
-    parts = {k: [] for k in empty}
-    rays = hits = 0
-    with progress(total=len(lanes), desc="rex light pass", unit="photon") as bar:
-        for b, start in enumerate(range(0, len(lanes), PHOTON_BATCH)):
-            sel = perm[start:start + PHOTON_BATCH]
-            ray, w = _emitter_rays(scene, bounds, em[sel], adapt_dim, s_adapt[sel],
-                                   s_other[sel])
-            w = dr.select(dr.isfinite(w), w, 0.0)
-            flux = w * mi.Float(scale[sel].astype(np.float32))
-            capacity = 3 * len(sel)
-            while True:
-                recs = (dr.zeros(mi.UInt32, capacity), dr.zeros(mi.Float, capacity),
-                        dr.zeros(mi.Float, capacity), dr.zeros(mi.Float, 3 * capacity),
-                        dr.zeros(mi.UInt32, capacity))
-                counter = dr.zeros(mi.UInt32, 1)
-                sampler = _sampler(hash31(seed, _SALT_PHOTON, b), len(sel))
-                n_rays, first_hit = _photon_trace(
-                    scene, tables, ray, flux, sampler, recs, counter, capacity,
-                    mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth))
-                dr.eval(n_rays, first_hit, *recs)
-                count = int(counter[0])
-                if count <= capacity:
-                    break
-                capacity = count  # deterministic: the same seed gives the same records
-            rays += int(dr.sum(n_rays)[0])
-            hits += int(dr.count(first_hit)[0])
-            # compact records: 26 bytes each
-            parts["rex"].append(np.asarray(recs[0], np.uint32)[:count])
-            parts["u"].append(np.asarray(recs[1], np.float32)[:count])
-            parts["v"].append(np.asarray(recs[2], np.float32)[:count])
-            parts["flux"].append(np.asarray(recs[3], np.float32)[:3 * count].reshape(-1, 3))
-            parts["depth"].append(np.minimum(np.asarray(recs[4], np.uint32)[:count],
-                                             np.iinfo(np.uint16).max).astype(np.uint16))
-            bar.update(len(sel))
-    records = {k: np.concatenate(v) if v else empty[k] for k, v in parts.items()}
-    stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=len(lanes),
-                 light_hit_percent=100.0 * hits / max(len(lanes), 1),
-                 light_tree_leaves=int(len(leaves)),
+    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2))
+    with progress(total=shoot.lanes, desc="rex light pass", unit="photon") as bar:
+        records, rays, hits = shoot_photons(scene, tables, shoot, settings, seed, _SALT_PHOTON,
+                                            keep_direct, bar)
+    stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=shoot.lanes,
+                 light_hit_percent=100.0 * hits / max(shoot.lanes, 1),
+                 light_tree_leaves=int(np.count_nonzero(tree.leaf)),
                  light_tree_max_level=int(tree.lev.max()) if len(tree.lev) else 0,
                  light_tree_min_level=int(tree.lev.min()) if len(tree.lev) else 0,
                  light_tree_nodes=int(len(tree.lev)),
@@ -1068,11 +1264,21 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
     rays first hit the back face of a one-sided surface (no BackSide BSDF flag) is inside a
     closed object. Two-sided and transmissive surfaces never bury a point: their normals may
     point anywhere (a room of two-sided walls with outward normals is not "inside"). Returns
-    the open fraction per node in ``nodes`` (1 where nothing covers the bucket)."""
+    the open fraction per node in ``nodes`` (1 where nothing covers the bucket), and the rays
+    traced. The buckets are probed :data:`EXPOSURE_BATCH` at a time (bounded memory)."""
     out = np.ones(len(nodes))
-    if len(nodes) == 0:
-        return out, 0
     rng = np.random.default_rng(hash31(seed, _SALT_NUMPY, 3))
+    rays = 0
+    for start in range(0, len(nodes), EXPOSURE_BATCH):
+        part = nodes[start:start + EXPOSURE_BATCH]
+        out[start:start + len(part)], r = _probe_open(scene, tables, node_rex, level, ix, iy,
+                                                      part, rng, m)
+        rays += r
+    return out, rays
+
+
+def _probe_open(scene, tables, node_rex, level, ix, iy, nodes, rng, m):
+    """:func:`probe_exposure` for one batch of buckets."""
     k = int(round(math.sqrt(m)))
     lane_node = np.repeat(np.arange(len(nodes)), k * k)
     sub = np.tile(np.arange(k * k), len(nodes))
@@ -1135,102 +1341,159 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
     return np.where(total > 0, open_count / np.maximum(total, 1), 1.0), rays
 
 
+def _spread_bits(x):
+    """Bits b of ``x`` (uint64, < 2^32) moved to bit 2b: one axis of a Morton (Z-order) code."""
+    x = x & np.uint64(0x00000000FFFFFFFF)
+    for shift, mask in ((16, 0x0000FFFF0000FFFF), (8, 0x00FF00FF00FF00FF),
+                        (4, 0x0F0F0F0F0F0F0F0F), (2, 0x3333333333333333),
+                        (1, 0x5555555555555555)):
+        x = (x | (x << np.uint64(shift))) & np.uint64(mask)
+    return x
+
+
+def key_bits(n_rexes: int) -> int:
+    """Bits per axis of a record's quadtree key: 20 (:data:`MAX_LEVEL` levels) while the rex
+    index fits the other 24 bits of a 64-bit key, fewer (a shallower deepest level) beyond."""
+    return int(min(MAX_LEVEL, (64 - max(int(n_rexes), 1).bit_length()) // 2))
+
+
+def quadtree_cells(rex, u, v, bits: int):
+    """Integer cell coordinates ``(qx, qy) = (⌊u·2^bits⌋, ⌊v·2^bits⌋)`` (uint64, clipped to the
+    square) and 64-bit keys ``rex · 4^bits + Morton(qx, qy)``, qx on the even bits.
+
+    Sorted, the records of every quadtree node at every level form one contiguous run (the
+    node's key prefix), and the two bits at level l (counted from the root's children) are the
+    quadrant qx + 2·qy that :meth:`Rexes.descend` takes there."""
+    n = 1 << bits
+    qx = np.clip(np.floor(np.asarray(u, np.float64) * n), 0, n - 1).astype(np.uint64)
+    qy = np.clip(np.floor(np.asarray(v, np.float64) * n), 0, n - 1).astype(np.uint64)
+    morton = _spread_bits(qx) | (_spread_bits(qy) << np.uint64(1))
+    return qx, qy, (np.asarray(rex, np.uint64) << np.uint64(2 * bits)) | morton
+
+
+def _run_max(values, lo, hi):
+    """max(values[lo:hi]) per run (runs non-empty)."""
+    if len(lo) == 0:
+        return np.zeros(0, values.dtype)
+    padded = np.append(values, values[:1])  # reduceat's indices must stay inside the array
+    idx = np.empty(2 * len(lo), np.int64)
+    idx[0::2], idx[1::2] = lo, hi
+    return np.maximum.reduceat(padded, idx)[0::2]
+
+
 def build_rex_tree(tables, records, cap, settings, scene=None, seed=0) -> Rexes:
     """Split every rex bucket holding more than ``split_limit`` photons (past its size-pass cap,
     more than split_limit·4^(levels past it); §4.1 "rex subdivision"), all rexes at once, level
     by level; then deposit the records and, given the scene, measure how much of each leaf is
-    buried under closed objects."""
+    buried under closed objects.
+
+    The records are sorted once by their quadtree key (:func:`quadtree_keys`): a node's records
+    are then one run of the sorted array, its photon count and largest cap come from the run's
+    ends, and its children's runs from a binary search of their key prefixes, so each level
+    costs the nodes it holds, not the photons (a Cornell box at 1M photons: 2.8M records)."""
     R = tables.count
-    rex = records["rex"].astype(np.int64)
-    u = records["u"].astype(np.float64)
-    v = records["v"].astype(np.float64)
-    rec_cap = cap[tables.size_cell_np(rex, u, v)] if len(rex) else np.zeros(0, np.int64)
-    rec_cap = np.minimum(rec_cap, settings.max_level).astype(np.int64)
-    node_rex = [np.arange(R, dtype=np.int64)]
-    level = [np.zeros(R, np.int64)]
-    ix = [np.zeros(R, np.int64)]
-    iy = [np.zeros(R, np.int64)]
-    child = [np.full(R, LEAF, np.int64)]
-    rec_node = rex.copy()
-    moving = np.ones(len(rex), bool)  # records whose node is at the current level
-    lvl_start, n_total = 0, R
+    n_rec = len(records["rex"])
+    bits = key_bits(R)
+    max_level = min(int(settings.max_level), bits)
+    qx, qy, keys = quadtree_cells(records["rex"], records["u"], records["v"], bits)
+    order = np.argsort(keys)  # ties (equal keys) in any order: nothing below depends on it
+    keys = keys[order]
+    # every record's size-pass cap, from its size cell (the top size-level bits of qx, qy)
+    rex = records["rex"]
+    size_level = tables.rex_size_level[rex].astype(np.uint64)
+    drop = np.uint64(bits) - size_level
+    cell = tables.rex_size_offset[rex] + (((qy >> drop) << size_level) | (qx >> drop)).astype(
+        np.int64)
+    rec_cap = np.minimum(cap[cell], max_level).astype(np.int16)[order]
+    del qx, qy, size_level, drop, cell
+
+    roots = np.arange(R, dtype=np.int64)
+    root_keys = roots.astype(np.uint64) << np.uint64(2 * bits)
+    node_rex, level, ix, iy, child = [roots], [np.zeros(R, np.int64)], \
+        [np.zeros(R, np.int64)], [np.zeros(R, np.int64)], [np.full(R, LEAF, np.int64)]
+    lo = [np.searchsorted(keys, root_keys, "left")]
+    hi = [np.append(lo[0][1:], n_rec)]
+    prefix = [root_keys]  # every node's smallest key
+    n_total = R
     for lev in range(MAX_LEVEL):
-        n_lev = n_total - lvl_start
-        if n_lev == 0 or not moving.any():
+        l_lo, l_hi = lo[-1], hi[-1]
+        cnt = l_hi - l_lo
+        if len(cnt) == 0 or lev >= max_level:
             break
-        idx = rec_node[moving] - lvl_start
-        cnt = np.bincount(idx, minlength=n_lev)
         # the size-pass cap is soft: past it, a bucket splits only with 4× more photons per
         # level (threshold split_limit·4^(level − cap + 1)), so buckets still shrink as the
         # photon count grows. A hard cap left the sub-pixel triangles of a lamp shade (seen
         # only along their rims, or missed by the size pass) one bucket each, whose average
         # irradiance is not that of the visible part, a bias no photon count removed.
-        bucket_cap = np.zeros(n_lev, np.int64)
-        np.maximum.at(bucket_cap, idx, rec_cap[moving])
+        limit = np.full(len(cnt), np.inf)
+        busy = np.nonzero(cnt > settings.split_limit)[0]
+        bucket_cap = _run_max(rec_cap, l_lo[busy], l_hi[busy]).astype(np.int64)
         past = np.maximum(lev - bucket_cap + 1, 0)
-        limit = settings.split_limit * np.power(4.0, np.minimum(past, 30))
-        split = np.nonzero((cnt > limit) & (lev < settings.max_level))[0]
+        limit[busy] = settings.split_limit * np.power(4.0, np.minimum(past, 30))
+        split = np.nonzero(cnt > limit)[0]
         if len(split) == 0:
             break
         # the nodes of level `lev` are the last block appended: give split ones four children
-        first = n_total + 4 * np.arange(len(split))
-        child[-1][split] = first
+        child[-1][split] = n_total + 4 * np.arange(len(split))
         q = np.tile(np.arange(4), len(split))
         node_rex.append(np.repeat(node_rex[-1][split], 4))
         level.append(np.full(4 * len(split), lev + 1, np.int64))
         ix.append(np.repeat(ix[-1][split] * 2, 4) + (q & 1))
         iy.append(np.repeat(iy[-1][split] * 2, 4) + (q >> 1))
         child.append(np.full(4 * len(split), LEAF, np.int64))
-        # move the records of split buckets into their quadrant
-        first_of = np.full(n_lev, -1, np.int64)
-        first_of[split] = first
-        mv = np.nonzero(moving)[0]
-        f = first_of[rec_node[mv] - lvl_start]
-        go = f >= 0
-        mv, f = mv[go], f[go]
-        scale = float(2 ** (lev + 1))
-        qx = (np.floor(u[mv] * scale).astype(np.int64)) & 1
-        qy = (np.floor(v[mv] * scale).astype(np.int64)) & 1
-        rec_node[mv] = f + qx + 2 * qy
-        moving = np.zeros(len(rex), bool)
-        moving[mv] = True
-        lvl_start, n_total = n_total, n_total + 4 * len(split)
+        step = np.uint64(1) << np.uint64(2 * (bits - lev - 1))
+        kids = np.repeat(prefix[-1][split], 4) + q.astype(np.uint64) * step
+        bounds = np.searchsorted(keys, kids, "left").reshape(-1, 4)
+        prefix.append(kids)
+        lo.append(bounds.ravel())
+        hi.append(np.concatenate([bounds[:, 1:], l_hi[split, None]], 1).ravel())
+        n_total += 4 * len(split)
     node_rex = np.concatenate(node_rex)
     level = np.concatenate(level)
     ix, iy = np.concatenate(ix), np.concatenate(iy)
     child = np.concatenate(child)
+    lo, hi = np.concatenate(lo), np.concatenate(hi)
 
-    # deposit (§4.1): Dr.Jit scatter_reduce of every record's flux into its leaf, in 64-bit
-    # fixed point (integer sums do not depend on the order of the atomic adds: the rexes, hence
-    # the image, are the same bit for bit for the same seed)
+    # every record's leaf: the leaves' runs tile the sorted records
     n = len(child)
-    count = np.bincount(rec_node, minlength=n).astype(np.int64) if len(rex) else \
-        np.zeros(n, np.int64)
-    fmax = float(records["flux"].max()) if len(rex) else 0.0
-    quantum = fmax / 2.0**32 if fmax > 0 and np.isfinite(fmax) else 1.0
-    UInt64, Float64 = dr.uint64_array_t(mi.Float), dr.float64_array_t(mi.Float)
+    is_leaf = child == LEAF
+    count = np.where(is_leaf, hi - lo, 0).astype(np.int64)
+    leaves = np.nonzero(is_leaf & (count > 0))[0]
+    leaves = leaves[np.argsort(lo[leaves], kind="stable")]
+    del keys, rec_cap
+    rec_node = np.empty(n_rec, np.int64)  # in the records' own order
+    rec_node[order] = np.repeat(leaves, count[leaves])
+    del order
+
+    # deposit (§4.1): every record's flux into its leaf, in fixed point (quanta of the largest
+    # flux / 2^k, summed as float64 integers below 2^53, hence exactly): the sums do not depend
+    # on the order of the records, which the light pass's atomic slot counter leaves random, so
+    # the rexes, hence the image, are the same bit for bit for the same seed
+    flux_in = records["flux"]
+    fmax = float(flux_in.max()) if n_rec else 0.0
+    k = min(32, 52 - int(n_rec).bit_length())
+    quantum = fmax / 2.0**k if fmax > 0 and np.isfinite(fmax) else 1.0
     # depth classes (finite max_depth): a record of depth k goes to the deepest class it
-    # belongs to, c0 = min(C − 1, max_depth − 2 − k); class c then sums the classes ≥ c
+    # belongs to, c0 = min(C − 1, max_depth − 2 − k); class c then sums the classes ≥ c; bins
+    # (leaf, class, direct or not)
     C = depth_classes(settings.max_depth)
-    k = records["depth"].astype(np.int64) if len(rex) else np.zeros(0, np.int64)
-    c0 = np.zeros(len(rex), np.int64) if settings.max_depth < 0 else \
-        np.clip(settings.max_depth - 2 - k, 0, C - 1)
-    flux = {}
-    direct = k == 0
-    for name, sel in (("d", direct), ("i", ~direct)):
-        target = dr.zeros(UInt64, 3 * n * C + 3)
-        if sel.any():
-            idx = rec_node[sel] * C + c0[sel]
-            for c in range(3):
-                q = dr.round(Float64(records["flux"][sel, c].astype(np.float64)) / quantum)
-                dr.scatter_reduce(dr.ReduceOp.Add, target, UInt64(q),
-                                  mi.UInt32((3 * idx + c).astype(np.uint32)))
-        per_class = np.asarray(target, np.float64)[:3 * n * C].reshape(n, C, 3) * quantum
-        flux[name] = np.cumsum(per_class[:, ::-1], axis=1)[:, ::-1]
+    depth = records["depth"]
+    bins = rec_node * (2 * C)
+    if settings.max_depth >= 0:
+        bins += 2 * np.clip(settings.max_depth - 2 - depth.astype(np.int64), 0, C - 1)
+    bins += depth > 0
+    del rec_node
+    sums = np.zeros((n * C * 2, 3))
+    for c in range(3):
+        quanta = np.round(flux_in[:, c].astype(np.float64) / quantum)
+        sums[:, c] = np.bincount(bins, weights=quanta, minlength=2 * n * C) * quantum
+    del bins, quanta
+    sums = sums.reshape(n, C, 2, 3)
+    flux = {name: np.cumsum(sums[:, ::-1, i], axis=1)[:, ::-1] for i, name in enumerate("di")}
     exposure = np.ones(n)
     exposure_rays = 0
     if scene is not None:
-        leaves = np.nonzero(child == LEAF)[0]
+        leaves = np.nonzero(is_leaf)[0]
         f, exposure_rays = probe_exposure(scene, tables, node_rex, level, ix, iy, leaves, seed,
                                           EXPOSURE_PROBES)
         # a leaf that caught photons is open somewhere, however few probes found it open
@@ -1315,11 +1578,11 @@ def build_rexes(scene, settings: RexSettings, seed: int = 0, sensor=None) -> Rex
     t0 = time.perf_counter()
     tables = RexTables(scene)
     warn_short_bbox(scene, tables.bounds)
-    cap, seen, size_rays = size_pass(scene, tables, settings, seed, sensor)
+    cap, seen, size_rays, need = size_pass(scene, tables, settings, seed, sensor)
     dr.sync_thread()
     t1 = time.perf_counter()
     records, light_stats = light_pass(scene, tables, seen, settings, seed, tables.bounds,
-                                      settings.direct == "rex")
+                                      settings.direct == "rex", need)
     t2 = time.perf_counter()
     rexes = build_rex_tree(tables, records, cap, settings, scene, seed)
     dr.sync_thread()
