@@ -174,15 +174,26 @@ class Measured:
         return self.predicted_error(spp) * self.predicted_seconds(spp)
 
 
-def light_paths(integ, scene) -> int:
-    """The light paths a candidate's prepass traces: rex photons, else radiosity particles
-    (at least the radiosity prepass's floor)."""
+def light_paths(integ, scene, sensor=None) -> tuple[int, int]:
+    """``(least, need)``: the light paths a candidate's prepass traces. rex: the photons the
+    image needs (:meth:`~mi_twopass.integrators.rex.RexIntegrator.photon_budget`), and as few
+    as rex's floor of 2^16 where twopass cuts them to its budget (:func:`light_paths_within`);
+    the others: their radiosity particles (at least the radiosity prepass's floor), not cut."""
     from ..prepass.radiosity import MIN_PARTICLES
+    from ..prepass.rex_textures import MIN_PHOTONS
 
     if hasattr(integ, "photon_budget"):
-        return int(integ.photon_budget(scene))
+        need = int(integ.photon_budget(scene, sensor=sensor))
+        return min(MIN_PHOTONS, need), need
     r = integ.radiosity
-    return max(int(r.max_patches) * int(r.particles_per_patch), MIN_PARTICLES)
+    n = max(int(r.max_patches) * int(r.particles_per_patch), MIN_PARTICLES)
+    return n, n
+
+
+def light_paths_within(seconds: float, path: Measured, film_pixels: int) -> int:
+    """The light paths whose :func:`prepass_floor` is ``seconds``."""
+    per_path = PREPASS_FLOOR_FACTOR * path.seconds_per_spp / max(film_pixels, 1)
+    return int(seconds / per_path) if per_path > 0 else 0
 
 
 def prepass_floor(light_path_count: int, path: Measured, film_pixels: int) -> float:
@@ -242,6 +253,8 @@ class Decision:
     measured: dict = field(default_factory=dict)   # name -> Measured
     skipped: dict = field(default_factory=dict)    # name -> reason
     best_case: dict = field(default_factory=dict)  # name -> best-case score
+    #: name -> (light paths built, light paths the image needs) where the budget cut them
+    fitted: dict = field(default_factory=dict)
 
     def reason(self) -> str:
         if self.chosen.name not in self.measured:  # forced, or no prepass could fit

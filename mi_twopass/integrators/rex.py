@@ -247,8 +247,16 @@ class RexIntegrator(TwoPassIntegrator):
 
     def photon_budget(self, scene, seed=0, sensor=None) -> int:
         """The photons the prepass will shoot (the image's need is measured: size pass and probe
-        shoot, :func:`~mi_twopass.prepass.rex_textures.photon_budget`)."""
-        return photon_budget(scene, self.rex_settings(scene), self.prepass_seed(seed), sensor)
+        shoot, :func:`~mi_twopass.prepass.rex_textures.photon_budget`; remembered for the
+        scene, sensor, settings and seed it was measured for)."""
+        if sensor is None and len(scene.sensors()):
+            sensor = scene.sensors()[0]
+        key = self.prepass_key(scene, sensor, seed)
+        memo = getattr(self, "_photon_memo", None)
+        if memo is None or memo[0] is not scene or memo[1] != key:
+            n = photon_budget(scene, self.rex_settings(scene), self.prepass_seed(seed), sensor)
+            self._photon_memo = memo = (scene, key, n)
+        return memo[2]
 
     def rex_settings(self, scene) -> RexSettings:
         return RexSettings(photons=self.settings_photons(scene), split_limit=self.split_limit,
@@ -259,7 +267,7 @@ class RexIntegrator(TwoPassIntegrator):
 
     def prepass(self, scene, seed):
         """Size pass, light pass and rex build (§3.4), by :func:`..prepass.rex_textures.build_rexes`."""
-        return build_rexes(scene, self.rex_settings(scene), seed)
+        return build_rexes(scene, self.rex_settings(scene), seed, self.prepass_sensor)
 
     def prepass_stats(self, pre):
         stats = dict(pre.stats)

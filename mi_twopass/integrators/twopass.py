@@ -141,9 +141,10 @@ class TwoPassChooser(TwoPassIntegrator):
         return {"max_depth": self.max_depth, "rr_depth": self.rr_depth, "seed": self.seed,
                 "component": self.component}
 
-    def candidate(self, c: cost.Composition):
-        """The integrator of composition ``c`` (built once per twopass object)."""
-        key = (c.plugin, c.props)
+    def candidate(self, c: cost.Composition, photons: int = 0):
+        """The integrator of composition ``c`` (built once per twopass object; ``photons`` > 0:
+        its rexes with that many photons instead of the image's need)."""
+        key = (c.plugin, c.props, photons)
         if key not in self._candidates:
             if c.plugin == "path":
                 props = mi.Properties()
@@ -151,8 +152,9 @@ class TwoPassChooser(TwoPassIntegrator):
                     props[k] = v
                 self._candidates[key] = ComponentPathIntegrator(props)
             else:
+                extra = {"photons": int(photons)} if photons > 0 else {}
                 self._candidates[key] = mi.load_dict(
-                    {"type": c.plugin, **self._common_props(), **dict(c.props)})
+                    {"type": c.plugin, **self._common_props(), **dict(c.props), **extra})
         return self._candidates[key]
 
     @staticmethod
@@ -184,7 +186,7 @@ class TwoPassChooser(TwoPassIntegrator):
         if path_row in self.allowed:
             # no pilot where no prepass can fit the budget whatever path's cost per sample
             too_big = cost.none_fit(
-                {c.name: cost.light_paths(self.candidate(c), scene)
+                {c.name: cost.light_paths(self.candidate(c), scene, sensor)[0]
                  for c in self.allowed if c.needs_prepass},
                 spp * film_pixels, self.pilot_budget)
             if too_big is not None:
@@ -236,7 +238,15 @@ class TwoPassChooser(TwoPassIntegrator):
                        f"{best:.3g} by {cost.MIN_GAIN}x")
             spent = time.perf_counter() - t_start
             integ = self.candidate(c)
-            floor = cost.prepass_floor(cost.light_paths(integ, scene), path_m, film_pixels)
+            least, need = cost.light_paths(integ, scene, sensor)
+            floor = cost.prepass_floor(need, path_m, film_pixels)
+            if why is None and spent + floor > budget and measured and least < need:
+                # rexes coarser than the image asks for: the photons the budget pays for
+                fits = cost.light_paths_within(budget - spent, path_m, film_pixels)
+                if fits >= least:
+                    integ = self.candidate(c, photons=fits)
+                    decision.fitted[c.name] = (fits, need)
+                    floor = cost.prepass_floor(fits, path_m, film_pixels)
             if why is None and spent + floor > budget and measured:
                 path_s = spp * path_m.seconds_per_spp
                 why = (f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
@@ -288,6 +298,8 @@ class TwoPassChooser(TwoPassIntegrator):
                     "mean_ratio": m.mean_ratio, "score": m.score(d.spp)}
                 for n, m in d.measured.items()},
             "twopass_skipped": dict(d.skipped),
+            "twopass_fitted": {n: {"light_paths": f[0], "image_needs": f[1]}
+                               for n, f in d.fitted.items()},
             "pilot_seconds": choice.seconds["pilot"],
         }
 
