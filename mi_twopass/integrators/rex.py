@@ -109,23 +109,25 @@ class RexIntegrator(TwoPassIntegrator):
     rex (through specular and glossy bounces), (pixel side / bucket side at its cap)², about 1–4
     buckets per visible pixel with ``bucket_pixels`` = 1 — and a probe shoot of 65536 photons
     measures how many deposits a photon leaves on the rexes the eye sees. The budget is
-    split_limit × that bucket count / that rate: the photons with which every bucket the eye
-    sees can split down to the pixel footprint (past that, photons only refine buckets the
-    screen cannot show). It lies within [2^16, 2^24] photons and keeps the records below 8M
-    (memory). So a closed Cornell box at 128² shoots 0.31M photons (2.4 deposits each), at
-    256² 1.2M, and ``caustic.xml``, whose photons mostly leave the scene (0.14 deposits each),
-    4.6M at 128² and the 2^24 cap at 256²; at 1920×1080 the record cap binds (3.4M photons).
-    A scene mostly seen through glossy or non-Lambertian surfaces needs few.
+    4 × split_limit × that bucket count / that rate: the photons with which every bucket the eye
+    sees splits down to the pixel footprint and fills there to the soft cap's threshold (past
+    that, photons refine buckets the screen cannot show). With split_limit photons per bucket
+    instead of 4×, the office's ceiling-lit walls were mottled (8×8-block relMSE 6e-3 at 128²).
+    The budget lies within [2^16, 2^24] photons and keeps the records below 8M (memory). So a
+    closed Cornell box (2.4 deposits per photon) shoots 1.2M photons at 128² and 3.4M (the
+    record cap) at 256² and 1920×1080, and ``caustic.xml``, whose photons mostly leave the
+    scene (0.14 deposits each), the 2^24 cap from 128² on. A scene seen mostly through
+    non-Lambertian surfaces needs few.
 
     **Cost.** Photons cost about one ray per bounce. The emission samples are made in Dr.Jit
     (no per-photon numpy), the light quadtree has at most 2^18 leaves, and the rex build sorts
     the records once by a Morton key so that each level costs its nodes, not its photons.
-    Measured on two CPU cores (LLVM, warm kernel cache; the prepass alone, as
-    ``python -m mi_twopass bench --prepass`` times it): the whole prepass takes 0.8 s on the
-    Cornell box at 128² (was 10 s with 256 photons per pixel), 1.6 s at 256² (was 13 s), 7 s
-    at 1920×1080 (was 15 s; peak memory 1.3 GB, was 3.8 GB), and 2.6 s for 17M photons on
-    ``caustic.xml`` at 256² (4M photons took 4 s). The records (26 bytes per deposit) are freed after the build; the
-    rexes take 8 + 24 bytes per node and depth class (``cache_bytes``).
+    Measured on two CPU cores (LLVM, warm kernel cache, the prepass alone): 1.5 s on the
+    Cornell box at 128² (was 10 s with 256 photons per pixel), 4.9 s at 256² (was 13 s), 6 s at
+    1920×1080 (was 15 s; peak memory 1.3 GB, was 3.8 GB), 2.3 s for 17M photons on
+    ``caustic.xml`` at 128² or 256² (4M photons took 4 s). The records (26 bytes per deposit)
+    are freed after the build; the rexes take 8 + 24 bytes per node and depth class
+    (``cache_bytes``).
 
     **Emission and scale.** Area lights emit from ``sample_position`` with cosine-weighted
     directions, infinite emitters (constant, envmap, sunsky, directional) from a disk facing
