@@ -369,6 +369,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
             beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
                                          active_next, bs)
 
+        dr.schedule(L, n_implicit, n_explicit, n_cache, visits)  # one kernel (spike_gather)
         self.count("implicit_rays", n_implicit)
         self.count("explicit_rays", n_explicit)
         self.count("cache_reads", n_cache)

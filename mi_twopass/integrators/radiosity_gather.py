@@ -240,6 +240,10 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
             beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
                                          active_next, bs)
 
+        # the counters are reductions that evaluate the loop: schedule L with them, so that one
+        # kernel computes everything instead of the loop running twice (2.4x path's cost per
+        # sample on the office at 128^2, 1.5x with it)
+        dr.schedule(L, n_implicit, n_explicit)
         self.count("implicit_rays", n_implicit)
         self.count("explicit_rays", n_explicit)
         return L, mi.Bool(True), []

@@ -371,6 +371,7 @@ class RexIntegrator(TwoPassIntegrator):
                                              sampler.next_1d())
             active = go & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
 
+        dr.schedule(L, n_implicit, n_explicit)  # one kernel (see spike_gather)
         self.count("implicit_rays", n_implicit)
         self.count("explicit_rays", n_explicit)
         self.count("eye_rays", n_implicit + n_explicit + 1)
