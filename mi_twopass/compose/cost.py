@@ -176,18 +176,27 @@ class Measured:
 
 def light_paths(integ, scene, sensor=None) -> tuple[int, int]:
     """``(least, need)``: the light paths a candidate's prepass traces. rex: the photons the
-    image needs (:meth:`~mi_twopass.integrators.rex.RexIntegrator.photon_budget`), and as few
-    as rex's floor of 2^16 where twopass cuts them to its budget (:func:`light_paths_within`);
-    the others: their radiosity particles (at least the radiosity prepass's floor), not cut."""
+    image needs (:meth:`~mi_twopass.integrators.rex.RexIntegrator.photon_budget`, measured by a
+    size pass and a probe shoot), and as few as :func:`least_light_paths` where twopass cuts
+    them to its budget (:func:`light_paths_within`); the others: their radiosity particles,
+    not cut."""
+    least = least_light_paths(integ)
+    if hasattr(integ, "photon_budget"):
+        return least, int(integ.photon_budget(scene, sensor=sensor))
+    return least, least
+
+
+def least_light_paths(integ) -> int:
+    """The fewest light paths a candidate's prepass can be built with: rex's floor of 2^16
+    photons, or the radiosity particles (at least the radiosity prepass's floor). Cheap: nothing
+    is traced (``none_fit`` decides on it before any pilot)."""
     from ..prepass.radiosity import MIN_PARTICLES
     from ..prepass.rex_textures import MIN_PHOTONS
 
     if hasattr(integ, "photon_budget"):
-        need = int(integ.photon_budget(scene, sensor=sensor))
-        return min(MIN_PHOTONS, need), need
+        return MIN_PHOTONS
     r = integ.radiosity
-    n = max(int(r.max_patches) * int(r.particles_per_patch), MIN_PARTICLES)
-    return n, n
+    return max(int(r.max_patches) * int(r.particles_per_patch), MIN_PARTICLES)
 
 
 def light_paths_within(seconds: float, path: Measured, film_pixels: int) -> int:

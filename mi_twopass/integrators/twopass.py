@@ -186,7 +186,7 @@ class TwoPassChooser(TwoPassIntegrator):
         if path_row in self.allowed:
             # no pilot where no prepass can fit the budget whatever path's cost per sample
             too_big = cost.none_fit(
-                {c.name: cost.light_paths(self.candidate(c), scene, sensor)[0]
+                {c.name: cost.least_light_paths(self.candidate(c))
                  for c in self.allowed if c.needs_prepass},
                 spp * film_pixels, self.pilot_budget)
             if too_big is not None:
