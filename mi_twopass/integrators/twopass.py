@@ -184,11 +184,20 @@ class TwoPassChooser(TwoPassIntegrator):
         path_row = cost.COMPOSITIONS[0]
         path_integ = self.candidate(path_row)
         if path_row in self.allowed:
-            # no pilot where no prepass can fit the budget whatever path's cost per sample
+            # no pilot where no prepass can fit the budget whatever path's cost per sample;
+            # rexes, which can be cut to 2^16 photons, count only where nothing else could be
+            # built (alone they would start a pilot at 32 spp of a 128² film, where its 147,456
+            # samples cost more than any rexes that small could save: the office's and
+            # window_interior's twopass fell to 0.93x and 0.84x path at 128²)
+            prepassed = [c for c in self.allowed if c.needs_prepass]
+            others = [c for c in prepassed if c.plugin != "rex"]
             too_big = cost.none_fit(
-                {c.name: cost.least_light_paths(self.candidate(c))
-                 for c in self.allowed if c.needs_prepass},
+                {c.name: cost.least_light_paths(self.candidate(c)) for c in others or prepassed},
                 spp * film_pixels, self.pilot_budget)
+            if too_big is not None and others:
+                for c in prepassed:
+                    too_big.setdefault(c.name, "no pilot: rexes cut to the budget do not start "
+                                               "a pilot where no other prepass fits")
             if too_big is not None:
                 decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big)
                 return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
