@@ -386,3 +386,75 @@ def test_furnace_is_exact(direct):
     exact = Le / (1 - albedo)
     # a t-test with 5 degrees of freedom (P(|t| > 5) ≈ 0.4 %)
     assert abs(means.mean() - exact) < 5 * se + 1e-3 * exact, (means, exact)
+
+
+# ---------------------------------------------------------------------------------------------
+# The rex build and the automatic photon budget
+# ---------------------------------------------------------------------------------------------
+def test_rex_build_follows_the_split_rule_record_by_record():
+    """The sort-once build (records ordered by their quadtree key, each node a run of them)
+    against the rule it implements, checked by brute force on random records over a sphere's
+    rex: every record lies in its leaf, the leaves' counts add up to the records, a leaf holds
+    at most split_limit·4^(levels past its cap) records unless it is at max_level, and every
+    split node held more than that."""
+    from mi_twopass.prepass.rex_textures import build_rex_tree
+
+    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "diffuse"}}})
+    tables = RexTables(scene)
+    rng = np.random.default_rng(3)
+    n = 20_000
+    # clustered records (a "caustic") on a uniform background, some exactly on bucket edges
+    u = np.concatenate([rng.random(n // 2), 0.3 + 0.01 * rng.random(n // 2)]).astype(np.float32)
+    v = np.concatenate([rng.random(n // 2), 0.6 + 0.01 * rng.random(n // 2)]).astype(np.float32)
+    u[:64] = 0.5
+    records = {"rex": np.zeros(n, np.uint32), "u": u, "v": v,
+               "flux": rng.random((n, 3)).astype(np.float32), "depth": np.ones(n, np.uint16)}
+    cap = np.full(tables.size_cells, 3, np.int64)
+    settings = RexSettings(split_limit=16, max_level=12)
+    rexes = build_rex_tree(tables, records, cap, settings)
+    leaf = rexes.is_leaf
+    assert rexes.count[leaf].sum() == n
+    lev = rexes.level.astype(np.int64)
+    past = np.maximum(lev - 3 + 1, 0)
+    limit = 16 * 4.0 ** past
+    # records per node by brute force: a record is in a node if its (u, v) falls in its square
+    size = np.ldexp(1.0, -lev)
+    inside = ((u[None, :] >= rexes.ix[:, None] * size[:, None])
+              & (u[None, :] < (rexes.ix[:, None] + 1) * size[:, None])
+              & (v[None, :] >= rexes.iy[:, None] * size[:, None])
+              & (v[None, :] < (rexes.iy[:, None] + 1) * size[:, None]))
+    held = inside.sum(axis=1)
+    assert np.array_equal(held[leaf], rexes.count[leaf])
+    assert np.all((held[leaf] <= limit[leaf]) | (lev[leaf] == settings.max_level))
+    assert np.all(held[~leaf] > limit[~leaf])
+    flux = rexes.flux_indirect[leaf].sum(axis=0)
+    assert np.allclose(flux, records["flux"].astype(np.float64).sum(axis=0), rtol=1e-6)
+
+
+def test_automatic_photon_budget_follows_the_image():
+    """Without ``photons`` the budget is what the image needs: split_limit·4 photons for every
+    rex bucket the size pass sees at the pixel footprint, over the visible deposits per photon
+    the probe measures. Four times the pixels, about four times the buckets and the photons; a
+    film that sees no rex, the floor of 2^16."""
+    from mi_twopass.prepass.rex_textures import MIN_PHOTONS, photon_budget
+
+    def scene(res, look_at_floor=True):
+        cam = top_camera(res) if look_at_floor else {
+            **top_camera(res), "to_world": T().look_at([0, 0, 4], [0, 0, 8], [0, 1, 0])}
+        return mi.load_dict({"type": "scene", "sensor": cam, "floor": floor(1.0),
+                             "light": {"type": "point", "position": [0, 0, 2],
+                                       "intensity": rgb(1.0)}})
+
+    settings = RexSettings(direct="rex")
+    small, large = photon_budget(scene(32), settings), photon_budget(scene(64), settings)
+    assert 3.0 < large / small < 5.0
+    pre = build_rexes(scene(32), settings, seed=1)
+    st = pre.stats
+    assert st["photons"] == pytest.approx(small, rel=0.05)
+    # the 2×2 floor seen from 4 above with a 60° field of view fills (1 / (4 tan 30°))² of it
+    seen = 32 * 32 / (4 * math.tan(math.radians(30))) ** 2
+    assert st["visible_pixels"] == pytest.approx(seen, rel=0.1)
+    assert st["visible_buckets"] >= st["visible_pixels"]  # ≥ 1 bucket per visible pixel
+    assert st["photon_need"] == pytest.approx(
+        4 * settings.split_limit * st["visible_buckets"] / st["visible_deposits_per_photon"])
+    assert photon_budget(scene(32, look_at_floor=False), settings) == MIN_PHOTONS
