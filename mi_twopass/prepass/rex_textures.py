@@ -41,9 +41,11 @@ The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
    cap): the buckets still shrink as the photon count grows. No photon is shot twice and no bucket
    mass is ever redistributed: each bucket's sum is exact for its final extent. (The split uses
    the same photons as the estimate; by symmetry the estimate at a point stays unbiased, though
-   split buckets lean high and unsplit ones low.) The deposit into the leaves is a Dr.Jit
-   ``scatter_reduce`` in 64-bit fixed point, so that the sums, hence the images, do not depend
-   on the order of the atomic adds. A bucket's irradiance is E = ΣΦ / area
+   split buckets lean high and unsplit ones low.) The records are sorted once by a Morton key
+   (:func:`quadtree_cells`), so that every node's records are one run of them and a level costs
+   its nodes, not its records. The deposit into the leaves sums fixed-point quanta exactly (as
+   float64 integers below 2^53), so that the sums, hence the images, do not depend on the order
+   in which the light pass's atomic counter recorded them. A bucket's irradiance is E = ΣΦ / area
    (:mod:`mi_twopass.units`), with the exact world area of its parameter square times the
    fraction of it that closed objects resting on the surface leave open (:func:`probe_exposure`:
    no dark seam along the foot of a box). Deposits are weighted by |cos θ_shading| /
