@@ -79,9 +79,12 @@ class RexIntegrator(TwoPassIntegrator):
     land more than ``light_split_dist`` apart, and only where the eye sees one of the two hits
     (silhouettes, shadow and caustic edges); a restricted quadtree, as in the paper. It is 2-D,
     not the 4-D tree §3.3.1 asks for area lights: the position on an area light (and on the
-    environment's bounding disk) is stratified, not adapted. Every leaf then shoots four
-    fresh photons, one per quadrant (the tree depends only on the pilot rays, so the estimate
-    stays unbiased: a test checks the flux through a square against I·Ω).
+    environment's bounding disk) is stratified, not adapted. The tree grows to a sixteenth of the
+    photon budget (at most 2^18 leaves); every leaf then shoots fresh photons, the same number
+    in each quadrant (the tree depends only on the pilot rays, so the estimate stays unbiased:
+    a test checks the flux through a square against I·Ω). Measured on ``caustic.xml`` at 256²
+    with 4M photons, the adaptation (``light_levels`` 3 against 0) did not change the relMSE
+    (0.0159–0.0165 against 0.0146–0.0161, two seeds).
 
     **Histogram redistribution (§4.1).** Instead of clearing and reshooting at each level, the
     final shoot keeps its photon records and the quadtrees are built from them, so every bucket
