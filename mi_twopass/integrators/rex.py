@@ -82,9 +82,10 @@ class RexIntegrator(TwoPassIntegrator):
     environment's bounding disk) is stratified, not adapted. The tree grows to a sixteenth of the
     photon budget (at most 2^18 leaves); every leaf then shoots fresh photons, the same number
     in each quadrant (the tree depends only on the pilot rays, so the estimate stays unbiased:
-    a test checks the flux through a square against I·Ω). Measured on ``caustic.xml`` at 256²
-    with 4M photons, the adaptation (``light_levels`` 3 against 0) did not change the relMSE
-    (0.0159–0.0165 against 0.0146–0.0161, two seeds).
+    a test checks the flux through a square against I·Ω). The adaptation buys little here:
+    ``python -m mi_twopass check scenes_xml/caustic.xml --res 256 --spp 128 --ref-spp 1024
+    --integrators rex,rex:light_levels=0`` gave block relMSE 9.0e-4 with ``light_levels`` 3
+    and 8.0e-4 with 0 (image means 1.0016 and 1.0017).
 
     **Histogram redistribution (§4.1).** Instead of clearing and reshooting at each level, the
     final shoot keeps its photon records and the quadtrees are built from them, so every bucket
@@ -118,17 +119,18 @@ class RexIntegrator(TwoPassIntegrator):
     instead of 4×, the office's ceiling-lit walls were mottled (8×8-block relMSE 6e-3 at 128²).
     The budget lies within [2^16, 2^24] photons and keeps the records below 8M (memory). So a
     closed Cornell box (2.4 deposits per photon) shoots 1.2M photons at 128² and 3.4M (the
-    record cap) at 256² and 1920×1080, and ``caustic.xml``, whose photons mostly leave the
-    scene (0.14 deposits each), the 2^24 cap from 128² on. A scene seen mostly through
-    non-Lambertian surfaces needs few.
+    record cap) at 256² and 1920×1080 (``bench --prepass`` records them), and ``caustic.xml``,
+    whose photons mostly leave the scene (0.14 deposits each), the 2^24 cap at 128² and 256²
+    (``stats["photons"]`` after a render; its prepass 2.3–2.8 s warm at 256²). A scene seen
+    mostly through non-Lambertian surfaces needs few.
 
     **Cost.** Photons cost about one ray per bounce. The emission samples are made in Dr.Jit
     (no per-photon numpy), the light quadtree has at most 2^18 leaves, and the rex build sorts
     the records once by a Morton key so that each level costs its nodes, not its photons.
-    Measured on two CPU cores (LLVM, warm kernel cache, the prepass alone): 1.5 s on the
-    Cornell box at 128² (was 10 s with 256 photons per pixel), 4.9 s at 256² (was 13 s), 6 s at
-    1920×1080 (was 15 s; peak memory 1.3 GB, was 3.8 GB), 2.3 s for 17M photons on
-    ``caustic.xml`` at 128² or 256² (4M photons took 4 s). The records (26 bytes per deposit)
+    Measured on two CPU cores with ``python -m mi_twopass bench --prepass --quick`` (the
+    prepass alone, warm kernel cache): 1.6 s on the Cornell box at 128² (9.7 s with 256 photons
+    per pixel), 5.0 s at 256² (12.7 s), 7.1 s at 1920×1080 (14.7 s; peak memory 1.3 GB, was
+    3.8 GB). The records (26 bytes per deposit)
     are freed after the build; the rexes take 8 + 24 bytes per node and depth class
     (``cache_bytes``).
 
