@@ -41,47 +41,53 @@ _TINY = 1e-30
 _INV_2PI = 0.5 / math.pi
 
 
-class _NumpyOps:
-    """Vector algebra on numpy ``(..., 3)`` arrays (float64)."""
-
-    @staticmethod
-    def dot(a, b):
-        return np.sum(a * b, axis=-1)
-
-    cross = staticmethod(np.cross)
-    atan2 = staticmethod(np.arctan2)
-    maximum = staticmethod(np.maximum)
-    minimum = staticmethod(np.minimum)
-    abs = staticmethod(np.abs)
-    sqrt = staticmethod(np.sqrt)
-
-    @staticmethod
-    def select(mask, a, b):
-        a, b = np.asarray(a), np.asarray(b)
-        if max(a.ndim, b.ndim) > np.ndim(mask):
-            mask = np.asarray(mask)[..., None]
-        return np.where(mask, a, b)
-
-    @staticmethod
-    def vec(v):
-        return v[..., None]
+#: operations that numpy and Dr.Jit both spell the same and that act alike on ``(..., 3)`` arrays
+_COMMON_OPS = ("cross", "maximum", "minimum", "abs", "sqrt")
+#: operations each backend supplies itself (different name or different semantics in numpy)
+_OWN_OPS = ("dot", "atan2", "select", "vec")
 
 
-class _DrJitOps:
-    """The same operations on Dr.Jit arrays (``mi.Float``, ``mi.Vector3f``, ``mi.Point3f``)."""
+class _Ops:
+    """The vector algebra of :func:`_form_factor` and :func:`point_to_disk_approx` for one array
+    library, as attributes: ``lib``'s functions named in :data:`_COMMON_OPS`, and every one of
+    :data:`_OWN_OPS` (no others) given as a keyword."""
 
-    dot = staticmethod(dr.dot)
-    cross = staticmethod(dr.cross)
-    atan2 = staticmethod(dr.atan2)
-    maximum = staticmethod(dr.maximum)
-    minimum = staticmethod(dr.minimum)
-    abs = staticmethod(dr.abs)
-    sqrt = staticmethod(dr.sqrt)
-    select = staticmethod(dr.select)
+    def __init__(self, lib, **own):
+        if set(own) != set(_OWN_OPS):
+            raise TypeError(f"_Ops needs exactly {_OWN_OPS}, got {tuple(own)}")
+        for name in _COMMON_OPS:
+            setattr(self, name, getattr(lib, name))
+        for name, fn in own.items():
+            setattr(self, name, fn)
 
-    @staticmethod
-    def vec(v):
-        return v
+
+def _np_dot(a, b):
+    """Dot product over the last axis of numpy ``(..., 3)`` arrays."""
+    return np.sum(a * b, axis=-1)
+
+
+def _np_select(mask, a, b):
+    """``np.where`` that lets a per-point mask ``(...)`` pick between ``(..., 3)`` vectors."""
+    a, b = np.asarray(a), np.asarray(b)
+    if max(a.ndim, b.ndim) > np.ndim(mask):
+        mask = np.asarray(mask)[..., None]
+    return np.where(mask, a, b)
+
+
+def _np_vec(v):
+    """A per-point scalar ``(...)`` as ``(..., 1)``, to scale ``(..., 3)`` vectors."""
+    return v[..., None]
+
+
+def _dr_vec(v):
+    """The identity: Dr.Jit already broadcasts a ``mi.Float`` against a 3-vector."""
+    return v
+
+
+#: vector algebra on numpy ``(..., 3)`` arrays (float64)
+_NumpyOps = _Ops(np, dot=_np_dot, atan2=np.arctan2, select=_np_select, vec=_np_vec)
+#: the same operations on Dr.Jit arrays (``mi.Float``, ``mi.Vector3f``, ``mi.Point3f``)
+_DrJitOps = _Ops(dr, dot=dr.dot, atan2=dr.atan2, select=dr.select, vec=_dr_vec)
 
 
 def _normalize(ops, v):

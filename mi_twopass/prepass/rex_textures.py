@@ -196,13 +196,12 @@ class RexTables:
         id_to_shape[ids] = np.arange(len(shapes), dtype=np.uint32)
 
         n = len(shapes)
-        kind = np.zeros(n, np.uint32)
-        sides = np.ones(n, np.uint32)
-        regions = np.zeros(n, np.int64)
-        area_rule = np.zeros(n, np.uint32)
-        wrap = np.zeros(n, np.uint32)
+        # per shape: its KIND_*, sides (1 or 2), AREA_* rule and WRAP_* flags; its number of
+        # regions (triangles, or 1 for an analytic shape) and first triangle; its analytic area
+        kind, sides, area_rule, wrap = np.zeros((4, n), np.uint32)
+        regions, tri_base = np.zeros((2, n), np.int64)
         shape_area = np.zeros(n, np.float64)
-        tri_base = np.zeros(n, np.int64)
+        sides[:] = 1
         tris_p0, tris_e1, tris_e2 = [], [], []
         n_tris = 0
         for i, shape in enumerate(shapes):  # setup over shapes, not a hot path

@@ -876,12 +876,10 @@ def _make_tables(patches, parts, tri_v, tri_p, tri_n):
     """Dr.Jit tables of the lookup and the sampler (each padded to length ≥ 1)."""
     N = patches.count
     n_reg = 1 + max([p["geom"].reg_id for p in parts], default=0)
-    kind = np.zeros(n_reg, np.uint32)
-    back_offset = np.zeros(n_reg, np.uint32)
-    face_offset = np.zeros(n_reg, np.uint32)
-    grid_base = np.zeros(n_reg, np.uint32)
-    grid_nu = np.ones(n_reg, np.uint32)
-    grid_nv = np.ones(n_reg, np.uint32)
+    # per region: its kind, the offset of its back-side patches (0 if one-sided), its first face
+    # in face_patch (mesh), its first patch and its patch grid (analytic shape; else 1 x 1)
+    kind, back_offset, face_offset, grid_base, grid_nu, grid_nv = np.zeros((6, n_reg), np.uint32)
+    grid_nu[:] = grid_nv[:] = 1
     face_patch, face_sub = [], []
     sub_res, sub_v0, sub_g1, sub_g2 = [], [], [], []
     n_faces = n_sub = 0
