@@ -4,9 +4,12 @@ Every random number of a prepass comes from a stream whose initial state is a ha
 render's seed and a *salt* naming the stream (particles, camera points, visibility rays,
 photons, ...): the same seed gives the same prepass bit for bit, and no two streams share their
 numbers. Seeds enter Dr.Jit kernels through ``dr.opaque`` (a literal would compile every
-kernel anew for each seed).
+kernel anew for each seed); numpy streams come from :func:`numpy_rng` (or
+``np.random.default_rng(hash31(...))``).
 """
 from __future__ import annotations
+
+import numpy as np
 
 _MASK64 = 0xFFFFFFFFFFFFFFFF
 
@@ -25,3 +28,10 @@ def hash31(seed: int, salt: int, extra: int = 0) -> int:
     ``Sampler.seed`` and ``numpy.random.default_rng`` take."""
     return (int(seed) * 0x9E3779B1 + int(salt) * 0x85EBCA77 + int(extra) * 0xC2B2AE3D) \
         & 0x7FFFFFFF
+
+
+def numpy_rng(seed: int, salt: int) -> np.random.Generator:
+    """The numpy stream named by ``salt`` of the render's ``seed``: a ``Generator`` seeded with
+    ``SeedSequence([seed, salt])`` (numpy's own hash of the pair, so streams of different salts
+    are independent)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(salt)]))

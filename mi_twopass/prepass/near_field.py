@@ -48,6 +48,7 @@ triangles (P in their plane).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import drjit as dr
 import mitsuba as mi
@@ -56,6 +57,7 @@ import numpy as np
 from .. import sh
 from ..form_factor import point_to_disk_approx, polygon_form_factor
 from ..scene.bounds import scene_diagonal
+from ..tables import Tables
 
 #: §7: a node farther than this many bounding radii is summed as a whole
 OPEN_FACTOR = 4.0
@@ -100,20 +102,22 @@ class NearField:
             self.verts, self.tri_normal, self.tri_B, self.ccenter, self.cradius, self.half))
         return int(own + (self.cells.nbytes if self.cells is not None else 0))
 
-    def _tables(self):
-        if not hasattr(self, "_dr"):
-            f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
-            self._dr = dict(
-                center=f(self.center), radius=f(self.radius), area=f(self.area), B=f(self.B),
-                normal=f(self.normal), skip=mi.UInt32(self.skip.astype(np.uint32)),
-                tri=mi.UInt32(np.where(self.tri < 0, 0xFFFFFFFF, self.tri).astype(np.uint32)),
-                verts=f(self.verts), tri_normal=f(self.tri_normal), tri_B=f(self.tri_B),
-                ccenter=f(self.ccenter), cradius=f(self.cradius), half=f(self.half),
-                M=dr.opaque(mi.UInt32, self.node_count))
-            cells = self.cells if self.cells is not None else NodeCells.root_only()
-            self._dr.update(cells.tables())
-            dr.eval(self._dr)
-        return self._dr
+    @cached_property
+    def _tables(self) -> Tables:
+        """Dr.Jit copies of the tree, the triangles and the cell lists (:meth:`NodeCells.tables`),
+        built on first use and kept (:func:`build_near_field` builds them, outside any symbolic
+        loop; set ``cells`` before)."""
+        f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
+        cells = self.cells if self.cells is not None else NodeCells.root_only()
+        t = Tables(
+            center=f(self.center), radius=f(self.radius), area=f(self.area), B=f(self.B),
+            normal=f(self.normal), skip=mi.UInt32(self.skip.astype(np.uint32)),
+            tri=mi.UInt32(np.where(self.tri < 0, 0xFFFFFFFF, self.tri).astype(np.uint32)),
+            verts=f(self.verts), tri_normal=f(self.tri_normal), tri_B=f(self.tri_B),
+            ccenter=f(self.ccenter), cradius=f(self.cradius), half=f(self.half),
+            M=dr.opaque(mi.UInt32, self.node_count), **cells.tables())
+        dr.eval(*t.values())
+        return t
 
     def correction(self, x, n, B_D, alpha, active=True, open_factor=OPEN_FACTOR, L_F=None):
         r""":math:`B_C = \sum (R_i - B_D) F_i` at points ``x`` (``mi.Point3f``) with unit normals
@@ -131,7 +135,7 @@ class NearField:
             return mi.Color3f(0.0), mi.UInt32(0)
         if L_F is None:
             L_F = []
-        t = self._tables()
+        t = self._tables
         x = mi.Point3f(x)
         cells = self.cells
         if (cells is not None and float(alpha) == cells.alpha
@@ -145,7 +149,7 @@ class NearField:
     def _traverse(self, x, n, B_D, alpha, active, open_factor, L_F, first, count):
         """The stackless skip-link walk of :meth:`correction`, one lane per point, over the
         subtrees listed in ``cell_nodes[first : first + count]`` (entry 0 is the root)."""
-        t = self._tables()
+        t = self._tables
         n = mi.Vector3f(n)
         abs_n = dr.abs(n)
         B_D = mi.Color3f(B_D)
@@ -366,7 +370,7 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     if T == 0:
         near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
                          ccenter, cradius, half)
-        near._tables()
+        near._tables  # the Dr.Jit copies, built now
         return near
     # Level by level: ``perm`` orders the triangles so that every node is a contiguous segment
     # [start, end) of it; a node of n triangles has 2n − 1 nodes in its subtree, so in pre-order
@@ -418,7 +422,7 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
                      ccenter, cradius, half)
     if points is not None:
         near.cells = NodeCells.build(near, points, alpha, cell_size=cell_size)
-    near._tables()  # Dr.Jit copies now, never first inside a symbolic loop
+    near._tables  # Dr.Jit copies now, never first inside a symbolic loop
     return near
 
 

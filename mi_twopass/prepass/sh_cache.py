@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from functools import cached_property
 
 import drjit as dr
 import mitsuba as mi
@@ -52,6 +53,7 @@ from .. import sh
 from ..scene.bounds import scene_bounds, scene_diagonal
 from ..scene.patches import build_patches
 from ..seeds import hash31
+from ..tables import Tables
 from .near_field import build_near_field, buried_triangles, split_near_triangles
 from .radiosity import RadiositySettings
 from .radiosity import build as build_radiosity
@@ -336,33 +338,33 @@ class RadianceCache:
         """RBF widths σ_k = max(cluster radius, alpha/4)."""
         return np.maximum(self.radius, 0.25 * self.alpha)
 
-    @property
+    @cached_property
     def grid(self) -> ClusterGrid:
-        if not hasattr(self, "_grid"):
-            self._grid = ClusterGrid(self.center, RBF_SUPPORT * self.sigma)
-        return self._grid
+        """The cluster grid over the RBF supports, built on first use and kept."""
+        return ClusterGrid(self.center, RBF_SUPPORT * self.sigma)
 
     @property
     def nbytes(self) -> int:
         return int(self.count * (3 + 1 + 27) * 4 + (self.grid.nbytes if self.count else 0))
 
-    def _tables(self):
-        """Dr.Jit copies of the field and its grid, built once (call outside symbolic loops: the
-        prepass does, through :func:`build_radiance_cache`). Grid constants are opaque, so a new
-        prepass does not recompile the render kernels."""
-        if not hasattr(self, "_dr"):
-            self._dr = dict(center=mi.Float(self.center.astype(np.float32).ravel()),
-                            sigma=mi.Float(self.sigma.astype(np.float32)),
-                            S=mi.Float(self.coeffs.astype(np.float32).ravel()))
-            if self.count:
-                g = self.grid
-                self._dr.update(g.tables())
-                self._dr["lo"] = dr.opaque(mi.Point3f, [float(v) for v in g.lo])
-                self._dr["inv_cell"] = dr.opaque(mi.Vector3f, [float(1.0 / v) for v in g.cell])
-                self._dr["res"] = dr.opaque(mi.Vector3i, [int(v) for v in g.res])
-                self._dr["K"] = dr.opaque(mi.UInt32, self.count)
-            dr.eval(self._dr)
-        return self._dr
+    @cached_property
+    def _tables(self) -> Tables:
+        """Dr.Jit copies of the field and its grid, built on first use and kept (first use
+        outside symbolic loops: the prepass builds them, through :func:`build_radiance_cache`).
+        Grid constants are opaque, so a new prepass does not recompile the render kernels."""
+        t = dict(center=mi.Float(self.center.astype(np.float32).ravel()),
+                 sigma=mi.Float(self.sigma.astype(np.float32)),
+                 S=mi.Float(self.coeffs.astype(np.float32).ravel()))
+        if self.count:
+            g = self.grid
+            t.update(g.tables())
+            t["lo"] = dr.opaque(mi.Point3f, [float(v) for v in g.lo])
+            t["inv_cell"] = dr.opaque(mi.Vector3f, [float(1.0 / v) for v in g.cell])
+            t["res"] = dr.opaque(mi.Vector3i, [int(v) for v in g.res])
+            t["K"] = dr.opaque(mi.UInt32, self.count)
+        tables = Tables(**t)
+        dr.eval(*tables.values())
+        return tables
 
     def coefficients(self, x, active=True):
         """Interpolated L_F at points ``x``: 9 ``mi.Color3f`` SH coefficients (incident radiance),
@@ -376,7 +378,7 @@ class RadianceCache:
             fallback = mi.Bool(active) & (sum_w <= 1e-3)
             nearest = self._nearest(x, fallback)
             near_acc = _accumulate([mi.Color3f(0.0) for _ in range(sh.SH_COUNT)],
-                                   self._tables()["S"], nearest, mi.Float(1.0), fallback)
+                                   self._tables["S"], nearest, mi.Float(1.0), fallback)
             inv = dr.rcp(dr.maximum(sum_w, 1e-30))
             coeffs = [dr.select(fallback, b, a * inv) for a, b in zip(acc, near_acc)]
         coeffs[0] = coeffs[0] + mi.Color3f(*amb)
@@ -395,7 +397,7 @@ class RadianceCache:
     def _interpolate(self, x, active):
         """(Σ_k w_k S_k, Σ_k w_k) over the clusters listed in the grid cell of ``x`` with
         w_k = exp(−|x − c_k|²/2σ_k²) ≥ :data:`RBF_MIN_WEIGHT` (Gaussian RBF)."""
-        t = self._tables()
+        t = self._tables
         x = mi.Point3f(x)
         active = mi.Bool(active)
         cell = self.grid.cell_index(x, t)
@@ -418,7 +420,7 @@ class RadianceCache:
     def _nearest(self, x, active):
         """The cluster with the smallest |x − c_k|/σ_k, by a loop over all clusters; only lanes
         in ``active`` (those outside every support) run it."""
-        t = self._tables()
+        t = self._tables
         x = mi.Point3f(x)
         active = mi.Bool(active)
         best_d = mi.Float(3e38)
@@ -454,7 +456,7 @@ class RadianceCache:
     def near_centre(self, x, radius, active=True):
         """``mi.Bool``: a cluster centre lies within ``radius`` of ``x`` (debug "samples")."""
         K = self.count
-        t = self._tables()
+        t = self._tables
         x = mi.Point3f(x)
         active = mi.Bool(active) & (K > 0)
         hit = mi.Bool(False)
@@ -531,7 +533,7 @@ def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
     coeffs, rays = gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster,
                                     seed)
     cache = RadianceCache(center, radius, coeffs, float(alpha), amb, p, rays, shading_rays)
-    cache._tables()
+    cache._tables  # Dr.Jit copies now, never first inside a symbolic loop
     return cache
 
 

@@ -103,7 +103,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..seeds import splitmix64
+from ..seeds import numpy_rng, splitmix64
+from ..tables import Tables
 from .radiosity import RadiositySettings
 from .radiosity import build as build_radiosity
 
@@ -167,23 +168,6 @@ def _flags(src):
 def _lum(rgb):
     """Scalar proxy of an RGB quantity: the mean of its channels."""
     return np.asarray(rgb, dtype=np.float64).reshape(-1, 3).mean(axis=1)
-
-
-class Tables:
-    """Named Dr.Jit tables of a structure, read with ``tables["name"]``.
-
-    Deliberately not a dict (nor a dataclass): Dr.Jit traverses those as PyTrees, so a
-    structure referenced inside a symbolic loop would turn every table into loop state (and one
-    reachable twice, e.g. ``grid.sources`` and ``sources``, into two aliased states)."""
-
-    def __init__(self, **tables):
-        self._d = dict(tables)
-
-    def __getitem__(self, name):
-        return self._d[name]
-
-    def values(self):
-        return self._d.values()
 
 
 def conservative_cos(c, sin_sub, cos_sub):
@@ -1104,7 +1088,7 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
     list_cell, inverse = np.unique(cells, return_inverse=True)
     L = list_cell.size
     # visibility sample points: up to cell_points random hits per cell, offset along the normal
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), _SALT_POINTS]))
+    rng = numpy_rng(seed, _SALT_POINTS)
     perm = rng.permutation(cells.size)
     order = perm[np.argsort(inverse[perm], kind="stable")]
     lst = inverse[order]

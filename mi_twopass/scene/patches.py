@@ -49,6 +49,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..seeds import numpy_rng
+from ..tables import Tables
 from .lambertian import is_lambertian
 
 #: shape kinds of the lookup table
@@ -61,6 +63,8 @@ MERGE_FRACTION = 0.5
 SAMPLES_PER_PATCH = 16
 #: voxel coordinates of the clustering grid are clamped to this many bits per axis
 _VOXEL_BITS = 19
+#: salt of the numpy stream of the property and exposure probe (:func:`_evaluate_properties`)
+_SALT_PROBE = 0x9A7C
 
 
 def _analytic_kind(shape) -> int:
@@ -361,7 +365,8 @@ class Patches:
     #: (N,) bool: irradiance too uneven across it to be read as its mean (set by the radiosity
     #: solve, :func:`mi_twopass.prepass.radiosity.receiver_spread`), not cached
     is_uneven: np.ndarray | None = None
-    _tables: dict = field(default_factory=dict, repr=False)
+    #: Dr.Jit tables of the lookup, the sampler and the per-patch gathers (:func:`_make_tables`)
+    _tables: Tables = field(default_factory=Tables, repr=False)
 
     # -- sizes -------------------------------------------------------------------------------
     @property
@@ -431,8 +436,8 @@ class Patches:
         mask = np.asarray(mask, dtype=bool)
         self.is_uneven = mask if self.is_uneven is None else (self.is_uneven | mask)
         self.is_diffuse = self.is_diffuse & ~mask
-        self._tables["patch_is_diffuse"] = mi.Bool(
-            np.append(self.is_diffuse.astype(bool), False))
+        self._tables.replace("patch_is_diffuse", mi.Bool(
+            np.append(self.is_diffuse.astype(bool), False)))
 
     def gather(self, name, patch_ids, active=True):
         """Per-patch data by id in Dr.Jit: ``name`` ∈ {"area" (mi.Float), "center"
@@ -695,7 +700,7 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     exposure = np.ones(N)
     if N == 0:
         return albedo, is_diffuse, Le, exposure, 0, np.zeros(0, dtype=bool)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9A7C]))
+    rng = numpy_rng(seed, _SALT_PROBE)
     pos_in_dr = {int(r): i for i, r in
                  enumerate(np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())))}
     P, Nrm, prim, bary, dr_index, patch_of, wi_z = [], [], [], [], [], [], []
@@ -873,7 +878,8 @@ def _probe_enclosed(scene, P, n, delta, rng):
 
 
 def _make_tables(patches, parts, tri_v, tri_p, tri_n):
-    """Dr.Jit tables of the lookup and the sampler (each padded to length ≥ 1)."""
+    """Dr.Jit tables of the lookup, the sampler and the per-patch gathers (each padded to length
+    ≥ 1), as one :class:`~mi_twopass.tables.Tables`."""
     N = patches.count
     n_reg = 1 + max([p["geom"].reg_id for p in parts], default=0)
     # per region: its kind, the offset of its back-side patches (0 if one-sided), its first face
@@ -986,4 +992,4 @@ def _make_tables(patches, parts, tri_v, tri_p, tri_n):
         patch_albedo=vec(patches.albedo, mi.Color3f),
         patch_Le=vec(patches.Le, mi.Color3f),
     )
-    return t
+    return Tables(**t)
