@@ -23,6 +23,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..prepass.radiosity import RadiositySettings
+from .light_samplers import EmitterSampler
 
 #: keys every integrator reports after a render
 STAT_KEYS = (
@@ -301,7 +302,22 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         """Everything after the first non-delta vertex's direct light is rendered."""
         return self.component in ("all", "indirect")
 
+    def loop_constants(self, scene, scale: float) -> tuple:
+        """What every gather loop reads and never changes: ``(scale, max_depth, want_direct,
+        want_indirect, bsdf_ctx, lights)``. ``scale`` (the scene's ray-offset length,
+        :mod:`mi_twopass.rays`) is made opaque, so that one compiled kernel serves every
+        scene; the depth bound and the components are Python values the loop is traced with;
+        ``lights`` is the integrator's :meth:`light_sampler` for ``scene``."""
+        return (dr.opaque(mi.Float, scale), self.depth_bound, self.want_direct,
+                self.want_indirect, mi.BSDFContext(), self.light_sampler(scene))
+
     # -- to override ------------------------------------------------------------------------
+    def light_sampler(self, scene):
+        """The explicit strategy's choice of a source
+        (:mod:`mi_twopass.integrators.light_samplers`): Mitsuba's own emitter choice unless an
+        integrator has a structure for it."""
+        return EmitterSampler(scene)
+
     def _read_props(self, props):
         """Read the subclass's own parameters (validate here, not in render)."""
 
@@ -327,6 +343,17 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         else:
             total = dr.sum(mi.UInt32(value))
         self._counters.setdefault(name, []).append(total)
+
+    def count_after(self, results, **counters):
+        """Evaluate a gather loop's ``results`` together with its ray ``counters`` (name →
+        per-lane UInt32 or mask) and add the counters to :attr:`stats` (:meth:`count`).
+
+        The counters are reductions: evaluated alone they would run the loop once for
+        themselves and once more for the image. Scheduled with the results, one kernel computes
+        both (``tests/integrators/test_api.py::test_a_render_traces_its_paths_once``)."""
+        dr.schedule(*results, *counters.values())
+        for name, value in counters.items():
+            self.count(name, value)
 
     # -- render -----------------------------------------------------------------------------
     def prepass_seed(self, seed) -> int:
@@ -444,7 +471,19 @@ class FarGatherIntegrator(TwoPassIntegrator):
     """An integrator whose gather rays longer than ``r_thresh`` read a radiosity prepass (GSII,
     Zimmerman & Shirley §2.5): reads ``r_thresh`` / ``r_thresh_rel`` and the prepass's budget
     (``max_patches``, ``particles_per_patch``, ``elements_per_patch``, ``vl_threshold``) with the
-    subclass's defaults, and resolves ``r_thresh`` for a scene."""
+    subclass's defaults, and resolves ``r_thresh`` for a scene.
+
+    Its XML parameters, beside the budget's (each subclass's manual gives those defaults):
+
+    .. list-table::
+       * - r_thresh
+         - float
+         - Gather-ray length below which the path is traced on (scene units). Default:
+           ``r_thresh_rel`` × the scene's bounding-box diagonal.
+       * - r_thresh_rel
+         - float, default 0.1
+         - Default ``r_thresh`` as a fraction of the bounding-box diagonal.
+    """
 
     #: defaults of (max_patches, particles_per_patch, elements_per_patch)
     RADIOSITY_DEFAULTS = (1024, 256, 16)

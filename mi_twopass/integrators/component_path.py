@@ -26,8 +26,7 @@ import mitsuba as mi
 
 from ..scene.bounds import ray_scale
 from .base import TwoPassIntegrator
-from .pathtrace import (bsdf_continue, emission_mis, emitter_sample_mis, path_start,
-                        roulette_step)
+from .pathtrace import bsdf_step, path_start
 
 
 class ComponentPathIntegrator(TwoPassIntegrator):
@@ -59,23 +58,22 @@ class ComponentPathIntegrator(TwoPassIntegrator):
         """``(direct, caustic, indirect, caustic_first)`` radiance along ``ray``, one path per
         lane; ``caustic_first`` is the part of ``caustic`` met from the first non-delta vertex
         (what ``component="direct"`` counts as direct)."""
-        scale = dr.opaque(mi.Float, ray_scale(scene))
-        max_depth = self.depth_bound
-        ctx = mi.BSDFContext()
-        ray, _, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
-            path_start(ray)
+        scale, max_depth, _, _, ctx, lights = \
+            self.loop_constants(scene, ray_scale(scene))
+        ray, _, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
+            prev_lights, active = path_start(ray, active, lights)
         direct = mi.Spectrum(0.0)
         caustic = mi.Spectrum(0.0)
         indirect = mi.Spectrum(0.0)
         caustic_first = mi.Spectrum(0.0)
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)
-        active = mi.Bool(active)
 
         while dr.hint(active, label="component_path"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
             n_implicit += dr.select(active & (depth > 0), 1, 0)
-            Le = beta * emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            Le = beta * lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
+                                            prev_bsdf_delta, active)
             is_caustic = prev_bsdf_delta & (n_nondelta >= 1)
             caustic += dr.select(is_caustic, Le, 0.0)
             caustic_first += dr.select(is_caustic & (n_nondelta == 1), Le, 0.0)
@@ -85,23 +83,21 @@ class ComponentPathIntegrator(TwoPassIntegrator):
             active_next = active & si.is_valid() & (depth + 1 < max_depth)
             bsdf = si.bsdf(ray)
             smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
-                                          active_next & smooth, scale)
+            Ld, cast, here = lights.sample_emitter_mis(scene, si, bsdf, ctx, sampler,
+                                                       active_next & smooth, scale)
             n_explicit += dr.select(cast, 1, 0)
             Ld = beta * Ld
             first_vertex = n_nondelta == 0
             direct += dr.select(first_vertex, Ld, 0.0)
             indirect += dr.select(first_vertex, 0.0, Ld)
 
-            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
-                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
-            depth[si.is_valid()] += 1
-            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
-                                         active_next, bs)
+            prev_lights = here
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, depth, active = \
+                bsdf_step(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta, depth,
+                          self.rr_depth)
 
-        dr.schedule(direct, caustic, indirect, caustic_first, n_implicit, n_explicit)
-        self.count("implicit_rays", n_implicit)
-        self.count("explicit_rays", n_explicit)
+        self.count_after((direct, caustic, indirect, caustic_first), implicit_rays=n_implicit,
+                         explicit_rays=n_explicit)
         return direct, caustic, indirect, caustic_first
 
     def to_string(self):

@@ -14,13 +14,15 @@ import mitsuba as mi
 from ..rays import spawn_ray, spawn_ray_to
 
 
-def path_start(ray):
+def path_start(ray, active, lights):
     """The loop state of a path at its camera ray, in the order the gather loops unpack it:
     ``(ray, L, β, η, depth, non-delta vertices so far, previous interaction, its BSDF pdf,
-    whether its BSDF sample was delta)``; the camera counts as a delta vertex (emission seen
-    directly gets MIS weight 1)."""
+    whether its BSDF sample was delta, the light sampler's context there, active lanes)``; the
+    camera counts as a delta vertex (emission seen directly gets MIS weight 1), and
+    ``lights`` (:mod:`mi_twopass.integrators.light_samplers`) gives its context's start."""
     return (mi.Ray3f(ray), mi.Spectrum(0.0), mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0),
-            mi.UInt32(0), dr.zeros(mi.SurfaceInteraction3f), mi.Float(1.0), mi.Bool(True))
+            mi.UInt32(0), dr.zeros(mi.SurfaceInteraction3f), mi.Float(1.0), mi.Bool(True),
+            lights.start(), mi.Bool(active))
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -92,18 +94,29 @@ def roulette_step(beta, eta, depth, rr_depth, u, active, bs):
     return beta, active & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
 
 
+def bsdf_step(bsdf, ctx, si, sampler, active, scale, beta, eta, n_nondelta, depth, rr_depth):
+    """A gather loop's implicit ray, as Mitsuba's ``path`` takes it: :func:`bsdf_continue`,
+    the depth counted where ``si`` is a hit, then :func:`roulette_step` from ``rr_depth`` on.
+    Returns ``(ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, depth,
+    active)``."""
+    ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = bsdf_continue(
+        bsdf, ctx, si, sampler, active, scale, beta, eta, n_nondelta)
+    depth = dr.select(si.is_valid(), depth + 1, depth)
+    beta, active = roulette_step(beta, eta, depth, rr_depth, sampler.next_1d(), active, bs)
+    return ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, depth, active
+
+
 #: delta bounces followed before the first non-delta vertex
 MAX_DELTA_DEPTH = 64
 
 
 @dr.syntax
-def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
-    """Follow delta (specular) bounces from ``ray`` to the first hit on a non-delta (smooth)
-    surface, as Mitsuba's ``path`` would. Returns ``(si, ray, beta, Le, found)``: that
-    interaction and the ray that reached it, the throughput of the delta chain, the emission
-    met on the way (MIS weight 1: no other strategy reaches it) and the lanes that found one
-    within ``max_depth`` vertices. Integrators' debug views and radiance_cache's gather vertex
-    start here."""
+def trace_until(scene, sampler, ray, active, stop, max_depth=MAX_DELTA_DEPTH):
+    """Follow BSDF-sampled bounces from ``ray`` to the first hit where ``stop(si, bsdf, hit)``
+    holds. Returns ``(si, ray, beta, Le, found)``: that interaction and the ray that reached
+    it, the throughput of the chain before it, the emission met on the way (unweighted: the
+    chain's vertices have no emitter sampling) and the lanes that found one within
+    ``max_depth`` vertices."""
     ctx = mi.BSDFContext()
     ray = mi.Ray3f(ray)
     beta = mi.Spectrum(1.0)
@@ -113,23 +126,38 @@ def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
     si = dr.zeros(mi.SurfaceInteraction3f)
     active = mi.Bool(active)
     max_depth = int(max_depth)
-    while dr.hint(active, label="first_nondelta_hit"):
+    while dr.hint(active, label="trace_until"):
         si_cur = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
         Le += beta * si_cur.emitter(scene).eval(si_cur, active)
         bsdf = si_cur.bsdf(ray)
         hit = active & si_cur.is_valid()
-        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        stop = hit & smooth & (depth + 1 < max_depth)
-        si[stop] = si_cur
-        found |= stop
-        bs, w = bsdf.sample(ctx, si_cur, sampler.next_1d(), sampler.next_2d(), hit & ~smooth)
-        go_on = hit & ~smooth & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        ray[go_on] = si_cur.spawn_ray(si_cur.to_world(bs.wo))
-        beta[go_on] *= w
+        stops = hit & stop(si_cur, bsdf, hit)
+        here = stops & (depth + 1 < max_depth)
+        si[here] = si_cur
+        found |= here
+        go = hit & ~stops
+        bs, w = bsdf.sample(ctx, si_cur, sampler.next_1d(), sampler.next_2d(), go)
+        go &= bs.pdf > 0
+        ray[go] = si_cur.spawn_ray(si_cur.to_world(bs.wo))
+        beta[go] *= w
         depth += 1
-        active = go_on & (depth < max_depth) & (dr.max(beta) != 0.0)
+        active = go & (depth < max_depth) & (dr.max(beta) != 0.0)
     return si, ray, beta, Le, found
 
 
-__all__ = ["first_nondelta_hit", "path_start", "mis_weight", "emission_mis", "emitter_sample_mis",
-           "by_component", "russian_roulette", "bsdf_continue", "roulette_step"]
+def is_smooth(si, bsdf, hit):
+    """A vertex with a non-delta lobe (where emitter sampling and gathers happen)."""
+    return mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+
+
+def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
+    """Follow delta (specular) bounces from ``ray`` to the first hit on a non-delta (smooth)
+    surface, as Mitsuba's ``path`` would: :func:`trace_until` stopping at smooth BSDFs (the
+    emission met on the way has MIS weight 1: no other strategy reaches it). Integrators'
+    debug views and radiance_cache's gather vertex start here."""
+    return trace_until(scene, sampler, ray, active, is_smooth, max_depth)
+
+
+__all__ = ["trace_until", "is_smooth", "first_nondelta_hit", "path_start", "mis_weight",
+           "emission_mis", "emitter_sample_mis",
+           "by_component", "russian_roulette", "bsdf_continue", "roulette_step", "bsdf_step"]

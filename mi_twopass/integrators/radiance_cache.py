@@ -12,8 +12,8 @@ from ..prepass.sh_cache import ALPHA_REL, CacheSettings, cached_surface
 from ..prepass.sh_cache import build as build_cache
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
                    read_radiosity_budget)
-from .pathtrace import (MAX_DELTA_DEPTH, bsdf_continue, by_component, emission_mis,
-                        emitter_sample_mis, first_nondelta_hit, path_start, roulette_step)
+from .pathtrace import (MAX_DELTA_DEPTH, bsdf_step, by_component, first_nondelta_hit,
+                        path_start)
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
 
@@ -305,28 +305,27 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         cache, ρ/π (B_D + λ B_C), and the BSDF ray there goes on only if it meets a surface
         that is not purely diffuse (whose outgoing light the cache does not hold)."""
         s = self.structure
-        scale = dr.opaque(mi.Float, min(1.0, s.scale))  # see mi_twopass.rays.spawn_offset
-        max_depth = self.depth_bound
-        want_direct, want_indirect = self.want_direct, self.want_indirect
+        # the ray offset's length: see mi_twopass.rays.spawn_offset
+        scale, max_depth, want_direct, want_indirect, ctx, lights = \
+            self.loop_constants(scene, min(1.0, s.scale))
         reads_cache = self.reads_cache and s.cache is not None
-        ctx = mi.BSDFContext()
 
-        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
-            path_start(ray)
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
+            prev_lights, active = path_start(ray, active, lights)
         camera_chain = mi.Bool(True)  # only delta vertices so far: a diffuse hit reads the cache
         after_cache = mi.Bool(False)  # the previous vertex read the cache
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)
         n_cache = mi.UInt32(0)
         visits = mi.UInt32(0)
-        active = mi.Bool(active)
 
         while dr.hint(active, label="radiance_cache"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
             n_implicit += dr.select(active & ~prev_bsdf_delta, 1, 0)
 
             # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            Le = emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            Le = lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
+                                     prev_bsdf_delta, active)
             L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
 
             bsdf = si.bsdf(ray)
@@ -345,8 +344,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 active_next &= first_vertex | ~smooth
 
             # Emitter sampling (MIS), at every non-delta vertex as in path.
-            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
-                                          active_next & smooth, scale)
+            Ld, cast, here = lights.sample_emitter_mis(scene, si, bsdf, ctx, sampler,
+                                                       active_next & smooth, scale)
             n_explicit += dr.select(cast, 1, 0)
             L += by_component(beta * Ld, first_vertex, want_direct, want_indirect)
 
@@ -358,22 +357,16 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 n_cache += dr.select(read, 1, 0)
                 visits += v
 
-            # BSDF sampling.
-            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
-                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
+            prev_lights = here
             camera_chain &= ~smooth
             after_cache = read
-            depth[si.is_valid()] += 1
+            # BSDF sampling.
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, depth, active = \
+                bsdf_step(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta, depth,
+                          self.rr_depth)
 
-            # Russian roulette (as Mitsuba's path), from rr_depth on.
-            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
-                                         active_next, bs)
-
-        dr.schedule(L, n_implicit, n_explicit, n_cache, visits)  # one kernel (spike_gather)
-        self.count("implicit_rays", n_implicit)
-        self.count("explicit_rays", n_explicit)
-        self.count("cache_reads", n_cache)
-        self.count("bvh_visits", visits)
+        self.count_after((L,), implicit_rays=n_implicit, explicit_rays=n_explicit,
+                         cache_reads=n_cache, bvh_visits=visits)
         return L, mi.Bool(True), []
 
     @staticmethod

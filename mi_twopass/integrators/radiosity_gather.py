@@ -15,8 +15,7 @@ from ..prepass.radiosity import build as build_radiosity
 from ..scene.bounds import ray_scale
 from ..scenefile import SceneFileError
 from .base import FarGatherIntegrator, read_choice
-from .pathtrace import (bsdf_continue, by_component, emission_mis, emitter_sample_mis,
-                        first_nondelta_hit, path_start, roulette_step)
+from .pathtrace import bsdf_step, by_component, first_nondelta_hit, path_start
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 
@@ -57,13 +56,11 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
 
     .. pluginparameters::
 
-     * - r_thresh
-       - |float|
-       - Gather-ray length below which the path is traced on (scene units). Default:
-         ``r_thresh_rel`` × the scene's bounding-box diagonal.
-     * - r_thresh_rel
-       - |float|
-       - Default ``r_thresh`` as a fraction of the bounding-box diagonal (default: 0.1).
+     * - r_thresh, r_thresh_rel
+       -
+       - As every far-gather integrator (:class:`~mi_twopass.integrators.base.FarGatherIntegrator`):
+         gather rays shorter than ``r_thresh`` trace on (default: 0.1 × the bounding-box
+         diagonal).
      * - max_patches
        - |int|
        - Patch budget of the prepass (default: 1024; on the Cornell box 4096 patches lowered
@@ -186,18 +183,14 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
     def sample_gather(self, scene, sampler, ray, active):
         """The GSII estimator of the class docstring, one path per lane."""
         r_thresh = mi.Float(self.r_thresh(scene))
-        scale = dr.opaque(mi.Float, ray_scale(scene))  # ray offsets (mi_twopass.rays)
-        max_depth = self.depth_bound
-        want_direct = self.want_direct
-        want_indirect = self.want_indirect
-        ctx = mi.BSDFContext()
+        scale, max_depth, want_direct, want_indirect, ctx, lights = \
+            self.loop_constants(scene, ray_scale(scene))
 
         # n_nondelta: non-delta vertices before the current hit
-        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
-            path_start(ray)
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
+            prev_lights, active = path_start(ray, active, lights)
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)
-        active = mi.Bool(active)
 
         while dr.hint(active, label="radiosity_gather"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
@@ -205,7 +198,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
             n_implicit += dr.select(gather_ray, 1, 0)
 
             # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            Le = emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            Le = lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
+                                     prev_bsdf_delta, active)
             L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
 
             # Far gather ray: reflected radiosity of the patch it hits ends the path (§2.5).
@@ -219,8 +213,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
             smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
 
             # Explicit gather from the emitters (Mitsuba's emitter sampling, MIS).
-            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
-                                          active_next & smooth, scale)
+            Ld, cast, here = lights.sample_emitter_mis(scene, si, bsdf, ctx, sampler,
+                                                       active_next & smooth, scale)
             n_explicit += dr.select(cast, 1, 0)
             L += by_component(beta * Ld, first_vertex, want_direct, want_indirect)
 
@@ -232,20 +226,12 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
                 n_explicit += dr.select(vl_ray, 1, 0)
 
             # Implicit gather ray, sampled from the BSDF.
-            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
-                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
-            depth[si.is_valid()] += 1
+            prev_lights = here
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, depth, active = \
+                bsdf_step(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta, depth,
+                          self.rr_depth)
 
-            # Russian roulette (as Mitsuba's path), from rr_depth on.
-            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
-                                         active_next, bs)
-
-        # the counters are reductions that evaluate the loop: schedule L with them, so that one
-        # kernel computes everything instead of the loop running twice (2.4x path's cost per
-        # sample on the office at 128^2, 1.5x with it)
-        dr.schedule(L, n_implicit, n_explicit)
-        self.count("implicit_rays", n_implicit)
-        self.count("explicit_rays", n_explicit)
+        self.count_after((L,), implicit_rays=n_implicit, explicit_rays=n_explicit)
         return L, mi.Bool(True), []
 
     def sample_debug(self, scene, sampler, ray, active):

@@ -15,8 +15,7 @@ from ..prepass.rex_textures import (KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings,
                                      photon_budget)
 from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
-from .pathtrace import (by_component, emission_mis, emitter_sample_mis, path_start,
-                        russian_roulette)
+from .pathtrace import by_component, path_start, russian_roulette, trace_until
 
 DEBUG_MODES = ("none", "leaves", "edges", "buckets")
 DIRECT_MODES = ("rex", "shadow")
@@ -301,29 +300,27 @@ class RexIntegrator(TwoPassIntegrator):
         class); vertices deeper than the classes are path traced."""
         pre = self.structure
         tables, rexes = pre.tables, pre.rexes
-        scale = dr.opaque(mi.Float, tables.scale)  # a ray offset's length (mi_twopass.rays)
+        # tables.scale: a ray offset's length (mi_twopass.rays)
+        scale, max_depth, want_direct, want_indirect, ctx, lights = \
+            self.loop_constants(scene, tables.scale)
         shadow = self.direct == "shadow"
-        max_depth = self.depth_bound
         finite = self.max_depth > 0
         classes = rexes.classes
-        want_direct = self.want_direct
-        want_indirect = self.want_indirect
-        ctx = mi.BSDFContext()
 
         # n_nondelta: non-delta vertices before the current hit
-        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
-            path_start(ray)
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
+            prev_lights, active = path_start(ray, active, lights)
         after_rex = mi.Bool(False)  # the MIS ray of a rex vertex: only emitters count
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)
-        active = mi.Bool(active)
 
         while dr.hint(active, label="rex_eye"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
             n_implicit += dr.select(active & (depth > 0), mi.UInt32(1), mi.UInt32(0))
 
             # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            Le = emission_mis(scene, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta, active)
+            Le = lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
+                                     prev_bsdf_delta, active)
             L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
 
             valid = active & si.is_valid() & ~after_rex
@@ -350,8 +347,9 @@ class RexIntegrator(TwoPassIntegrator):
             smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
             glossy = valid & ~on_rex_surface & smooth
             can_go = depth + 1 < max_depth
-            Ld, cast = emitter_sample_mis(scene, si, bsdf, ctx, sampler.next_2d(),
-                                          (glossy | (at_rex & shadow)) & can_go, scale)
+            Ld, cast, here = lights.sample_emitter_mis(scene, si, bsdf, ctx, sampler,
+                                                       (glossy | (at_rex & shadow)) & can_go,
+                                                       scale)
             n_explicit += dr.select(cast, mi.UInt32(1), mi.UInt32(0))
             L += by_component(beta * Ld, first, want_direct, want_indirect)
 
@@ -369,6 +367,7 @@ class RexIntegrator(TwoPassIntegrator):
             prev_bsdf_pdf = bs.pdf
             prev_bsdf_delta = is_delta
             after_rex = mis_ray
+            prev_lights = here
             depth += 1
 
             # Russian roulette on long specular/glossy chains (as Mitsuba's path).
@@ -376,37 +375,23 @@ class RexIntegrator(TwoPassIntegrator):
                                              sampler.next_1d())
             active = go & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
 
-        dr.schedule(L, n_implicit, n_explicit)  # one kernel (see spike_gather)
-        self.count("implicit_rays", n_implicit)
-        self.count("explicit_rays", n_explicit)
-        self.count("eye_rays", n_implicit + n_explicit + 1)
+        self.count_after((L,), implicit_rays=n_implicit, explicit_rays=n_explicit,
+                         eye_rays=n_implicit + n_explicit + 1)
         return L, mi.Bool(True), []
 
-    @dr.syntax
     def sample_debug(self, scene, sampler, ray, active):
-        """Debug views of the rexes at the first diffuse hit (specular chains followed)."""
+        """Debug views of the rexes at the first rex hit (other surfaces followed by BSDF
+        sampling, :func:`mi_twopass.integrators.pathtrace.trace_until`)."""
         pre = self.structure
         tables, rexes = pre.tables, pre.rexes
-        scale = dr.opaque(mi.Float, tables.scale)  # a ray offset's length (mi_twopass.rays)
-        ctx = mi.BSDFContext()
-        ray = mi.Ray3f(ray)
-        beta = mi.Spectrum(1.0)
-        result = mi.Spectrum(0.0)
-        depth = mi.UInt32(0)
-        active = mi.Bool(active)
-        while dr.hint(active, label="rex_debug"):
-            si = scene.ray_intersect(ray, active)
-            valid = active & si.is_valid()
-            rex, uv, at_rex = tables.locate(si, valid)
-            bsdf = si.bsdf(ray)
-            value = self.debug_value(rexes, si, bsdf, rex, uv, at_rex)
-            result[at_rex] = beta * value
-            bs, w = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), valid & ~at_rex)
-            ray = spawn_ray(si, si.to_world(bs.wo), scale)
-            beta *= w
-            depth += 1
-            active = valid & ~at_rex & (bs.pdf > 0) & (dr.max(beta) > 0) & (depth < 64)
-        return result, mi.Bool(True), []
+
+        def at_rex(si, bsdf, hit):
+            return tables.locate(si, hit)[2]
+
+        si, ray, beta, _, found = trace_until(scene, sampler, ray, active, at_rex)
+        rex, uv, found = tables.locate(si, found)
+        value = self.debug_value(rexes, si, si.bsdf(ray), rex, uv, found)
+        return dr.select(found, beta * value, 0.0), mi.Bool(True), []
 
     def debug_value(self, rexes, si, bsdf, rex, uv, at_rex):
         """The debug view's colour at a rex hit (leaf colour, or bucket radiance ± edges)."""

@@ -14,8 +14,9 @@ from ..rays import spawn_ray_to
 from ..scene.bounds import ray_scale
 from .base import (FarGatherIntegrator, needs_memory, read_bool, read_choice, read_float,
                    read_int)
-from .pathtrace import (bsdf_continue, by_component, first_nondelta_hit, mis_weight,
-                        path_start, roulette_step)
+from .light_samplers import SpikeListSampler, receiver
+from .pathtrace import (bsdf_step, by_component, first_nondelta_hit, mis_weight,
+                        path_start)
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
 
@@ -185,13 +186,11 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
        - |bool|
        - MIS between the explicit and the implicit strategy (default: true); false: the paper's
          partition (listed sources only explicitly, the others only implicitly).
-     * - r_thresh
-       - |float|
-       - Gather-ray length below which the path is traced on (scene units). Default:
-         ``r_thresh_rel`` × the scene's bounding-box diagonal.
-     * - r_thresh_rel
-       - |float|
-       - Default ``r_thresh`` as a fraction of the bounding-box diagonal (default: 0.1).
+     * - r_thresh, r_thresh_rel
+       -
+       - As every far-gather integrator (:class:`~mi_twopass.integrators.base.FarGatherIntegrator`):
+         gather rays shorter than ``r_thresh`` trace on (default: 0.1 × the bounding-box
+         diagonal).
      * - max_patches
        - |int|
        - Patch budget of the radiosity prepass (default: 4096).
@@ -299,96 +298,72 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             return mi.Spectrum(0.0), mi.Bool(True), []
         return self.sample_gather(scene, sampler, ray, active)
 
-    @staticmethod
-    def receiver(si, bsdf):
-        """Receiver normal for L' (the shading normal on wi's side) and whether |cos| applies
-        (BSDFs that transmit)."""
-        side = dr.select(mi.Frame3f.cos_theta(si.wi) >= 0, 1.0, -1.0)
-        two_sided = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Transmission)
-        return mi.Vector3f(si.sh_frame.n) * side, two_sided
+    def light_sampler(self, scene) -> SpikeListSampler:
+        """The explicit strategy's source choice (§2.6, §4) over this prepass's lists:
+        :class:`mi_twopass.integrators.light_samplers.SpikeListSampler`. The defensive
+        component covers every emitter where MIS can weight its hits, else only the sources no
+        implicit ray can meet (delta)."""
+        support = "emitters" if self.complete and self.mis else "delta"
+        return SpikeListSampler(self.structure.grid, len(scene.emitters()), self.r_thresh(scene),
+                                defensive=self.defensive if self.complete else 0.0,
+                                support=support, jitter=self.jitter)
 
     @dr.syntax
     def sample_gather(self, scene, sampler, ray, active):
         """The estimator of the class docstring, one path per lane."""
         pre = self.structure
-        sol, src, grid = pre.solution, pre.sources, pre.grid
+        sol, src = pre.solution, pre.sources
         r_thresh = mi.Float(self.r_thresh(scene))
-        scale = dr.opaque(mi.Float, ray_scale(scene))  # ray offsets (mi_twopass.rays)
-        max_depth = self.depth_bound
-        want_direct = self.want_direct
-        want_indirect = self.want_indirect
+        scale, max_depth, want_direct, want_indirect, ctx, lights = \
+            self.loop_constants(scene, ray_scale(scene))
         complete, use_mis = self.complete, self.mis
-        defensive = self.defensive if complete else 0.0
-        # the defensive component covers every emitter where MIS can weight its hits, else only
-        # the sources no implicit ray can meet (delta)
-        support = "emitters" if complete and use_mis else "delta"
-        _, n_support, in_support = grid.support_tables(support)
-        inv_n_support = 1.0 / max(n_support, 1)
-        ctx = mi.BSDFContext()
         emitters = scene.emitters_dr()
-        n_emitters = len(scene.emitters())
-        inv_n_emitters = 1.0 / max(n_emitters, 1)
 
         # n_nondelta: non-delta vertices before the current hit
-        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta = \
-            path_start(ray)
-        prev_list_a = mi.UInt32(INVALID)  # lists used at the previous vertex (INVALID: none)
-        prev_list_b = mi.UInt32(INVALID)
-        prev_scale_a = mi.Float(0.0)  # m_c/W_c there: P(i) = Σ_c scale_c·g_ci·L'_i
-        prev_scale_b = mi.Float(0.0)
-        prev_eps = mi.Float(0.0)  # ε of the defensive component there
-        prev_n = mi.Vector3f(0.0)
-        prev_two = mi.Bool(False)
+        ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
+            prev_lights, active = path_start(ray, active, lights)
         n_implicit = mi.UInt32(0)
         n_explicit = mi.UInt32(0)
         n_fallback = mi.UInt32(0)  # explicit gathers at vertices whose cells have no list
-        active = mi.Bool(active)
 
         while dr.hint(active, label="spike_gather"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
             gather_ray = active & ~prev_bsdf_delta
             n_implicit += dr.select(gather_ray, 1, 0)
-            from_list = gather_ray & (prev_list_a != INVALID)
-            from_fallback = gather_ray & (prev_list_a == INVALID)
+            from_list = gather_ray & prev_lights.has_list
 
-            # -- Emission met by this ray: partitioned by the previous vertex's list.
+            # -- Emission met by this ray: MIS against the previous vertex's choice, or the
+            #    paper's partition by its lists.
             ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
             Le = ds.emitter.eval(si, active)
-            hit_sid = src.source_of_emitter(ds.emitter, from_list)
-            listed_a, g_a = grid.contains(prev_list_a, hit_sid, from_list)
-            listed_b, g_b = grid.contains(prev_list_b, hit_sid, from_list)
-            listed = listed_a | listed_b
-            pdf_dir = ds.emitter.pdf_direction(prev_si, ds, from_list | from_fallback)
-            w_fallback = mis_weight(prev_bsdf_pdf, pdf_dir * inv_n_emitters)
+            hit_sid = lights.source_of_emitter(ds.emitter, gather_ray)
+            P_hit, listed = lights.pmf_listed(prev_lights, hit_sid, gather_ray)
+            pdf_dir = ds.emitter.pdf_direction(prev_si, ds, gather_ray)
+            w_mis = mis_weight(prev_bsdf_pdf, P_hit * pdf_dir)
             if use_mis:
-                # the explicit strategy's probability of this direction: P(i)·p_i(ω)
-                Lp_hit = src.estimate(hit_sid, prev_si.p, prev_n, prev_two, r_thresh, listed)
-                P_hit = (prev_scale_a * g_a + prev_scale_b * g_b) * Lp_hit + dr.select(
-                    dr.gather(mi.Bool, in_support, hit_sid, from_list & (hit_sid != INVALID)),
-                    prev_eps * inv_n_support, 0.0)
-                w_listed = mis_weight(prev_bsdf_pdf, P_hit * pdf_dir)
+                w_listed = w_mis
             else:
                 w_listed = mi.Float(0.0)
             if complete and use_mis:  # every emitter has an explicit strategy: MIS throughout
                 w_unlisted = w_listed
             elif complete:  # the partition: implicit only
                 w_unlisted = mi.Float(1.0)
-            else:  # the paper: only far implicit rays gather (a miss has t = ∞)
+            else:  # the paper: only far implicit rays gather (a miss has t = inf)
                 w_unlisted = dr.select(si.t >= r_thresh, 1.0, 0.0)
+            # without a list the previous vertex sampled an emitter uniformly, with MIS
             w_emit = dr.select(prev_bsdf_delta, 1.0,
-                               dr.select(from_fallback, w_fallback,
+                               dr.select(~from_list, w_mis,
                                          dr.select(listed, w_listed, w_unlisted)))
             Le = beta * w_emit * Le
             L += by_component(Le, n_nondelta <= 1, want_direct, want_indirect)
 
-            # -- Far gather ray: B_r/π of the patch hit ends the path, unless it is a VL of the
-            #    list used (then it was sampled explicitly).
+            # -- Far gather ray: B_r/pi of the patch hit ends the path, unless it is a VL of
+            #    the lists used (then it was sampled explicitly).
             far = gather_ray & si.is_valid() & (si.t >= r_thresh) & sol.cached_at(si, active)
             if want_indirect:
                 pid = sol.patches.lookup(si, far)
                 vl_sid = src.source_of_patch(pid, far & from_list)
-                vl_listed = grid.contains(prev_list_a, vl_sid, far & from_list)[0] \
-                    | grid.contains(prev_list_b, vl_sid, far & from_list)[0]
+                vl_listed = lights.listed(prev_lights, vl_sid, far & from_list)
                 # the receiving element hit (the patch's value without elements)
                 L += beta * sol.reflected_radiance(si, far & ~vl_listed)
 
@@ -397,36 +372,21 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             first_vertex = n_nondelta == 0
             smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
             active_em = active_next & smooth
-            n_r, two = self.receiver(si, bsdf)
+            n_r, two = receiver(si, bsdf)
 
-            # -- Explicit gather: one source of the spike lists (§4), or Mitsuba's sampling.
-            u_j = sampler.next_2d()
-            u_jz = sampler.next_1d()
-            lid_a, lid_b = grid.choose_lists(si.p, mi.Point3f(u_j.x, u_j.y, u_jz), active_em,
-                                             self.jitter)
-            has_list = active_em & (lid_a != INVALID)
-            use_fb = active_em & ~has_list & (n_emitters > 0)
-            u_a = sampler.next_1d()
-            u_b = sampler.next_1d()
-            u_mix = sampler.next_1d()
+            # -- Explicit gather: one source of the spike lists (section 4), or an emitter
+            #    uniformly where the cell has no list.
+            sid, P_sel, here = lights.sample(si, n_r, two, sampler, active_em)
             u_pos = sampler.next_2d()
-            sid, P_sel, scale_a, scale_b, eps = grid.sample(
-                lid_a, lid_b, si.p, n_r, two, u_a, u_b, u_mix, r_thresh, defensive, has_list,
-                support)
-            chosen = has_list & (sid != INVALID)
-            is_vl = chosen & src.gather("is_patch", sid, chosen)
-            is_em = chosen & ~is_vl
+            chosen = active_em & (sid != INVALID) & (P_sel > 0)
+            is_vl = lights.is_patch(sid, chosen)
+            sample_em = chosen & ~is_vl
+            use_fb = sample_em & ~here.has_list
 
-            # one emitter sample: the listed source chosen, or (no list) an emitter chosen
-            # uniformly, Mitsuba-style, with MIS
-            fb_index = dr.minimum(mi.UInt32(u_mix * n_emitters), max(n_emitters - 1, 0))
-            em_index = dr.select(is_em, src.gather("emitter_index", sid, is_em), fb_index)
-            sample_em = is_em | use_fb
-            emitter = dr.gather(mi.EmitterPtr, emitters, em_index, sample_em)
+            emitter = dr.gather(mi.EmitterPtr, emitters, lights.emitter_index(sid, sample_em),
+                                sample_em)
             ds_l, spec_l = emitter.sample_direction(si, u_pos, sample_em)
-            P_em = dr.select(use_fb, inv_n_emitters, P_sel)
-            is_em &= (ds_l.pdf > 0) & (P_sel > 0)
-            use_fb &= ds_l.pdf > 0
+            is_em = sample_em & (ds_l.pdf > 0)
 
             vl_pid = src.gather("patch_id", sid, is_vl)
             p_y, n_y, pdf_a = sol.patches.sample_points(vl_pid, u_pos, is_vl)
@@ -435,53 +395,38 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             dist = dr.sqrt(dist2)
             w_y = d_y / dr.maximum(dist, _TINY)
             cos_y = dr.dot(n_y, -w_y)
-            is_vl &= (dist >= r_thresh) & (pdf_a > 0) & (cos_y > 0) & (dist2 > 0) & (P_sel > 0)
+            is_vl &= (dist >= r_thresh) & (pdf_a > 0) & (cos_y > 0) & (dist2 > 0)
 
             # emitters: a shadow ray; reclassified patches: the ray must first meet the patch
             # where it is cached (virtual_point_reached: elsewhere the implicit ray traces on)
-            cast = is_em | is_vl | use_fb
-            to_emitter = cast & ~is_vl
+            cast = is_em | is_vl
             shadow = spawn_ray_to(si, ds_l.p, scale)
-            visible = to_emitter & ~scene.ray_test(shadow, to_emitter)
+            visible = is_em & ~scene.ray_test(shadow, is_em)
             visible |= virtual_point_reached(scene, sol, si, w_y, vl_pid, dist, scale, is_vl)
             n_explicit += dr.select(cast, 1, 0)
-            n_fallback += dr.select(use_fb, 1, 0)
+            n_fallback += dr.select(use_fb & is_em, 1, 0)
 
             wo = si.to_local(dr.select(is_vl, w_y, ds_l.d))
             f, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, visible)
-            w_em = mis_weight(P_em * ds_l.pdf, bsdf_pdf)
+            w_em = mis_weight(P_sel * ds_l.pdf, bsdf_pdf)
             if not use_mis:  # the paper's partition for listed sources (fallback keeps MIS)
                 w_em = dr.select(use_fb, w_em, 1.0)
             w_em = dr.select(ds_l.delta, 1.0, w_em)
-            contrib_em = spec_l * (w_em / dr.maximum(P_em, _TINY))
+            contrib_em = spec_l * (w_em / dr.maximum(P_sel, _TINY))
             Lr = sol.patch_reflected_radiance(vl_pid, is_vl)
             contrib_vl = Lr * (cos_y / dr.maximum(dist2 * P_sel * pdf_a, _TINY))
             Ld = beta * f * dr.select(is_vl, contrib_vl, contrib_em)
             Ld = dr.select(visible & dr.all(dr.isfinite(Ld)), Ld, 0.0)
-            L += by_component(Ld, (is_em | use_fb) & first_vertex, want_direct, want_indirect)
+            L += by_component(Ld, is_em & first_vertex, want_direct, want_indirect)
 
             # -- Implicit gather ray, sampled from the BSDF.
-            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, bs = \
-                bsdf_continue(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta)
-            prev_list_a = dr.select(has_list, lid_a, INVALID)
-            prev_list_b = dr.select(has_list, lid_b, INVALID)
-            prev_scale_a = dr.select(has_list, scale_a, 0.0)
-            prev_scale_b = dr.select(has_list, scale_b, 0.0)
-            prev_eps = dr.select(has_list, eps, 0.0)
-            prev_n = n_r
-            prev_two = two
-            depth[si.is_valid()] += 1
+            prev_lights = here
+            ray, beta, eta, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, depth, active = \
+                bsdf_step(bsdf, ctx, si, sampler, active_next, scale, beta, eta, n_nondelta, depth,
+                          self.rr_depth)
 
-            # Russian roulette (as Mitsuba's path), from rr_depth on.
-            beta, active = roulette_step(beta, eta, depth, self.rr_depth, sampler.next_1d(),
-                                         active_next, bs)
-
-        # the counters are reductions that evaluate the loop: schedule L with them, so that one
-        # kernel computes everything instead of the loop running twice
-        dr.schedule(L, n_implicit, n_explicit, n_fallback)
-        self.count("implicit_rays", n_implicit)
-        self.count("explicit_rays", n_explicit)
-        self.count("fallback_gathers", n_fallback)
+        self.count_after((L,), implicit_rays=n_implicit, explicit_rays=n_explicit,
+                         fallback_gathers=n_fallback)
         return L, mi.Bool(True), []
 
     def sample_debug(self, scene, sampler, ray, active):
