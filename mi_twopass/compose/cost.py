@@ -95,6 +95,8 @@ COMPOSITIONS = (
     Composition("spike", "radiosity", "off", "spike_gather", (), ("direct", "indirect")),
     Composition("emitter", "radiosity", "off", "radiosity_gather", (), ("indirect",)),
     Composition("emitter", "cache", "off", "radiance_cache", (), ("indirect",)),
+    Composition("spike", "cache", "off", "radiance_cache", (("direct", "spike"),),
+                ("direct", "indirect")),
     Composition("emitter", "rex", "rex", "rex", (), ("direct", "indirect", "caustic")),
 )
 

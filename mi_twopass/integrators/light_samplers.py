@@ -172,10 +172,21 @@ class SpikeListSampler(LightSampler):
     ``support``: the defensive component's sources, "emitters" (every emitter, so that each
     has an explicit strategy and MIS can weight all their hits) or "delta" (only sources no
     ray can hit); ``defensive``: its weight ε; ``r_thresh``: the gather reach L' is clamped
-    with."""
+    with.
+
+    ``selection``: "point" (the paper's) weighs each listed source by g·L'_i(x) at the
+    shading point, a sweep over both lists per vertex; "cell" by fixed per-cell weights
+    (:func:`~mi_twopass.prepass.spike_grid.cell_weights`: L' averaged over the cell's
+    visibility points), drawn by a binary search in the list's CDF, and P(i | x) is a table
+    read: cheaper per vertex, blind to where in the cell x lies."""
+
+    SELECTIONS = ("point", "cell")
 
     def __init__(self, grid, n_emitters, r_thresh, defensive=0.1, support="emitters",
-                 jitter=1.0):
+                 jitter=1.0, selection="point"):
+        if selection not in self.SELECTIONS:
+            raise ValueError(f"selection={selection!r}: expected one of {self.SELECTIONS}")
+        self.selection = selection
         self.grid = grid
         self.sources = grid.sources
         self.n_emitters = int(n_emitters)
@@ -203,34 +214,68 @@ class SpikeListSampler(LightSampler):
         u_a = sampler.next_1d()
         u_b = sampler.next_1d()
         u_mix = sampler.next_1d()
-        sid, P, scale_a, scale_b, eps = grid.sample(
-            lid_a, lid_b, si.p, n, two_sided, u_a, u_b, u_mix, self.r_thresh, self.defensive,
-            has_list, self.support)
+        P = None
+        if self.selection == "cell":
+            sid, scale_a, scale_b, eps = self._cell_sample(lid_a, lid_b, u_a, u_mix, has_list)
+        else:
+            sid, P, scale_a, scale_b, eps = grid.sample(
+                lid_a, lid_b, si.p, n, two_sided, u_a, u_b, u_mix, self.r_thresh,
+                self.defensive, has_list, self.support)
         # no list: an emitter uniformly (source ids of emitters are their indices)
         fallback = active & ~has_list & (self.n_emitters > 0)
         fb = dr.minimum(mi.UInt32(u_mix * self.n_emitters), max(self.n_emitters - 1, 0))
         sid = dr.select(has_list, sid, dr.select(fallback, fb, INVALID))
-        P = dr.select(has_list, P, dr.select(fallback, self.inv_n_emitters, 0.0))
         ctx = SpikeContext(dr.select(has_list, lid_a, INVALID),
                            dr.select(has_list, lid_b, INVALID),
                            dr.select(has_list, scale_a, 0.0), dr.select(has_list, scale_b, 0.0),
                            dr.select(has_list, eps, 0.0), mi.Point3f(si.p), mi.Vector3f(n),
                            mi.Bool(two_sided))
+        if P is None:  # the cell selection's P: two table reads (pmf)
+            P = self.pmf(ctx, sid, active & (sid != INVALID))
+        else:
+            P = dr.select(has_list, P, dr.select(fallback, self.inv_n_emitters, 0.0))
         return sid, P, ctx
+
+    def _cell_sample(self, lid_a, lid_b, u, u_mix, active):
+        """The per-cell selection: the defensive component with ε, else list a or b (equally
+        among those with weight), then a source by the list's CDF. Returns ``(sid, m_a, m_b,
+        ε)`` (the context's scales are the mixture weights here)."""
+        grid = self.grid
+        eps, m_a, m_b = grid.cell_mixture(lid_a, lid_b, self.defensive, self.support)
+        pick_def = active & (u_mix < eps)
+        pick_b = active & ~pick_def & (u_mix >= eps + m_a) & (m_b > 0)
+        pick_a = active & ~pick_def & ~pick_b & (m_a > 0)
+        from_list = pick_a | pick_b
+        sid, _ = grid.cell_pick(dr.select(pick_b, lid_b, lid_a), u, from_list)
+        sid = dr.select(from_list, sid, INVALID)
+        ids, K, _ = grid.support_tables(self.support)
+        if K > 0:
+            k = mi.UInt32(dr.minimum(u_mix / dr.maximum(eps, _TINY) * K, K - 1))
+            sid = dr.select(pick_def, dr.gather(mi.UInt32, ids, k, pick_def), sid)
+        return sid, m_a, m_b, eps
 
     def pmf_listed(self, ctx, source, active):
         """``(P(source | x), listed)``: :meth:`pmf`, and whether ``source`` is in one of the
         context's lists (the paper's partition needs it)."""
         active = mi.Bool(active)
         from_list = active & ctx.has_list
-        listed_a, g_a = self.grid.contains(ctx.list_a, source, from_list)
-        listed_b, g_b = self.grid.contains(ctx.list_b, source, from_list)
-        listed = listed_a | listed_b
-        Lp = self.sources.estimate(source, ctx.p, ctx.n, ctx.two_sided, self.r_thresh, listed)
+        if self.selection == "cell":
+            listed_a, e_a = self.grid.entry_of(ctx.list_a, source, from_list)
+            listed_b, e_b = self.grid.entry_of(ctx.list_b, source, from_list)
+            prob = self.grid._tables["cell_prob"]
+            P_list = ctx.scale_a * dr.gather(mi.Float, prob, e_a, listed_a) \
+                + ctx.scale_b * dr.gather(mi.Float, prob, e_b, listed_b)
+            listed = listed_a | listed_b
+        else:
+            listed_a, g_a = self.grid.contains(ctx.list_a, source, from_list)
+            listed_b, g_b = self.grid.contains(ctx.list_b, source, from_list)
+            listed = listed_a | listed_b
+            Lp = self.sources.estimate(source, ctx.p, ctx.n, ctx.two_sided, self.r_thresh,
+                                       listed)
+            P_list = (ctx.scale_a * g_a + ctx.scale_b * g_b) * Lp
         in_support = dr.gather(mi.Bool, self.in_support, source,
                                from_list & (source != INVALID))
-        P_list = (ctx.scale_a * g_a + ctx.scale_b * g_b) * Lp \
-            + dr.select(in_support, ctx.eps * self.inv_n_support, 0.0)
+        P_list += dr.select(in_support, ctx.eps * self.inv_n_support, 0.0)
         is_emitter = (source != INVALID) & (source < self.n_emitters)
         P_fallback = dr.select(is_emitter, self.inv_n_emitters, 0.0)
         P = dr.select(from_list, P_list, dr.select(active, P_fallback, 0.0))

@@ -10,12 +10,15 @@ import mitsuba as mi
 
 from ..prepass.sh_cache import ALPHA_REL, CacheSettings, cached_surface
 from ..prepass.sh_cache import build as build_cache
+from ..prepass.spike_grid import SpikeSettings
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
                    read_radiosity_budget)
+from .light_samplers import SpikeListSampler
 from .pathtrace import (MAX_DELTA_DEPTH, bsdf_step, by_component, first_nondelta_hit,
                         path_start)
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
+DIRECT_MODES = ("emitter", "spike")
 
 #: accepted range of ``lambda``: 0 (far field alone) … 1 (the physical correction, eq. 2) … this
 #: (§8.1, Fig. 12: λ > 1 exaggerates B_C for fake GI); beyond it B_C swamps the image
@@ -41,7 +44,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     of tracing on: the *cache vertex*, the first purely diffuse surface reached from the camera
     through delta (specular) vertices only, where the shading points are::
 
-        L(x) = Le(x) + direct(x) [Mitsuba emitter sampling + one BSDF ray, MIS]
+        L(x) = Le(x) + direct(x) [emitter sampling (or spike lists) + one BSDF ray, MIS]
                      + ρ(x)/π · (B_D(x) + λ · B_C(x))      light reflected by cached surfaces
                      + f·cos/p · L(y), y the BSDF ray's hit, when y is not cached (path traced)
 
@@ -149,6 +152,13 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - What a near triangle's radiosity R_t is compared with: "direction" (default) the far
          field in the triangle's direction, π·L_F(D_t) (eq. 5, footnote 1: no constant-L_F
          assumption); "mean" the paper's eq. 6, B_D for every triangle.
+     * - direct
+       - |string|
+       - How direct(x) chooses its emitter: "emitter" (default) Mitsuba's emitter sampling;
+         "spike" Zimmerman & Shirley's spike lists of the emitters (built on the coarse
+         solution, as ``spike_gather``'s without virtual luminaires: the cache holds the
+         reflected light), for scenes with many lights whose visibility varies. Either is
+         unbiased (MIS with the BSDF ray throughout).
      * - max_patches
        - |int|
        - Patch budget of the radiosity prepass; the patches' triangles are the near-field
@@ -228,11 +238,13 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.cell_rel = read_float(props, "near_cell_rel", 1.0, minimum=0.0, strict=True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.near_far = read_choice(props, "near_far", "direction", ("direction", "mean"))
+        self.direct = read_choice(props, "direct", "emitter", DIRECT_MODES)
 
     def settings(self):
         return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.radiosity,
                 self.max_points,
-                self.max_clusters, self.rays_per_cluster, self.max_near_triangles, self.cell_rel)
+                self.max_clusters, self.rays_per_cluster, self.max_near_triangles, self.cell_rel,
+                self.direct)
 
     @property
     def cache_settings(self) -> CacheSettings:
@@ -244,7 +256,18 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                              max_near_triangles=self.max_near_triangles,
                              near_cell_rel=self.cell_rel, ignore_media=self.ignore_media,
                              path_only=not self.reads_cache and self.debug == "none",
-                             debug_view=self.debug != "none")
+                             debug_view=self.debug != "none",
+                             spike=SpikeSettings() if self.direct == "spike" else None)
+
+    def light_sampler(self, scene):
+        """The direct light's source choice: the spike lists of the prepass with
+        ``direct="spike"`` (:class:`~mi_twopass.integrators.light_samplers.SpikeListSampler`,
+        a defensive 10 % over every emitter, so MIS weighs every hit), else Mitsuba's."""
+        s = self.structure
+        if s is None or s.grid is None:
+            return super().light_sampler(scene)
+        return SpikeListSampler(s.grid, len(scene.emitters()), r_thresh=0.0, defensive=0.1,
+                                support="emitters", selection="cell")
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):
@@ -253,19 +276,28 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         return build_cache(scene, self.cache_settings, seed, sensor=self.prepass_sensor)
 
     def prepass_stats(self, s):
+        lists = {}
+        if s.spike is not None:
+            st = s.spike.stats
+            lists = {"spike_lists": int(s.spike.grid.count),
+                     "spike_visibility_rays": int(st.get("visibility_rays", 0)),
+                     "spike_camera_rays": int(st.get("camera_rays", 0)),
+                     "spike_bytes": int(s.spike.grid.nbytes)}
+        return {**self._cache_stats(s), **lists}
+
+    def _cache_stats(self, s):
         if s.cache is None:
-            return {"prepass_rays": 0, "NRT": 0, "NFGS": 0, "CS": 0, "cache_bytes": 0,
+            return {"prepass_rays": 0, "NRT": 0, "NFGS": 0, "CS": 0, "cache_bytes": s.nbytes,
                     "alpha": 0.0}
         radiosity_rays = int(s.solution.rays) if s.solution is not None else 0
         cache, near = s.cache, s.near
-        sol_bytes = int(s.solution.nbytes) if s.solution is not None else 0
         cs = int(cache.nbytes + near.nbytes)
         return {"prepass_rays": radiosity_rays + cache.rays + cache.shading_rays,
                 "NRT": radiosity_rays + cache.rays, "sh_gather_rays": cache.rays,
                 "NFGS": cache.count, "shading_points": int(len(cache.points)),
                 "patches": int(s.patches.count), "bvh_nodes": near.node_count,
                 "near_triangles": int(len(near.verts)), "split_complete": s.split_complete,
-                "CS": cs, "cache_bytes": cs + sol_bytes, "alpha": s.alpha}
+                "CS": cs, "cache_bytes": s.nbytes, "alpha": s.alpha}
 
     def _finish_stats(self, sensor, spp, prepass_seconds, render_seconds):
         super()._finish_stats(sensor, spp, prepass_seconds, render_seconds)

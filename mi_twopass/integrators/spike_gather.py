@@ -178,6 +178,13 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
        - true: every emitter met by an implicit ray counts (MIS-weighted), every emitter has
          a defensive explicit probability: unbiased whatever the lists (default). false: the
          paper's estimator, truncated (§5.3).
+     * - selection
+       - |string|
+       - How a listed source is chosen at a shading point x: "cell" (default) ∝ per-cell
+         weights g·L' (L' averaged over the cell's visibility points), by a binary search in
+         the list's CDF; "point" (the paper's §4) ∝ g·L'(x) estimated at x for every source of
+         both lists. Both are unbiased; "cell" costs less per vertex and ignores where in the
+         cell x lies (time × error: docs/results/spike-selection-2026-11-25.md).
      * - defensive
        - |float|
        - Probability ε of choosing an emitter uniformly (only delta ones when ``mis`` is
@@ -252,6 +259,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         self.jitter = read_float(props, "jitter", 1.0, minimum=0.0)
         self.complete = read_bool(props, "complete", True)
         self.mis = read_bool(props, "mis", True)
+        self.selection = read_choice(props, "selection", "cell", SpikeListSampler.SELECTIONS)
         self.defensive = read_float(props, "defensive", 0.1, minimum=0.0)
         if self.defensive >= 1.0:
             raise ValueError(f"defensive={self.defensive}: must be < 1")
@@ -306,7 +314,8 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         support = "emitters" if self.complete and self.mis else "delta"
         return SpikeListSampler(self.structure.grid, len(scene.emitters()), self.r_thresh(scene),
                                 defensive=self.defensive if self.complete else 0.0,
-                                support=support, jitter=self.jitter)
+                                support=support, jitter=self.jitter,
+                                selection=self.selection)
 
     @dr.syntax
     def sample_gather(self, scene, sampler, ray, active):

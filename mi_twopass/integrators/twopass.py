@@ -86,7 +86,8 @@ class TwoPassChooser(TwoPassIntegrator):
      * - direct
        - |string|
        - "auto" (default), "emitter" (Mitsuba's emitter sampling with MIS) or "spike"
-         (``spike_gather``'s spike lists).
+         (spike lists: ``spike_gather``'s, or with indirect="cache" ``radiance_cache``'s
+         ``direct="spike"``).
      * - indirect
        - |string|
        - "auto" (default), "path" (traced), "radiosity" (GSII far gather), "cache" (the
@@ -361,7 +362,7 @@ class TwoPassChooser(TwoPassIntegrator):
         parts = {}
         if s is None:
             return parts
-        if c.direct == "spike":
+        if c.direct == "spike" and s.grid is not None:
             from ..prepass.spike_grid import INVALID
             parts["spike"] = active & (s.grid.list_at(si.p, active) != INVALID)
         if c.indirect == "radiosity":

@@ -57,6 +57,7 @@ from ..tables import Tables
 from .near_field import build_near_field, buried_triangles, split_near_triangles
 from .radiosity import RadiositySettings
 from .radiosity import build as build_radiosity
+from .spike_grid import SpikeSettings, build_spike_prepass
 from ..scene.lambertian import LambertianShapes, lambertian_flags
 
 #: delta bounces followed when collecting shading points
@@ -614,6 +615,9 @@ class CacheSettings:
     path_only: bool = False
     #: a debug view will show the structure: build it even where the render would not read it
     debug_view: bool = False
+    #: spike lists for the direct light (emitters only: the cache holds the indirect light),
+    #: None: Mitsuba's emitter sampling
+    spike: SpikeSettings | None = None
 
 
 class CachePrepass:
@@ -622,22 +626,31 @@ class CachePrepass:
     (:class:`~mi_twopass.prepass.near_field.NearField`), ``scale`` (the scene's diagonal) and
     ``lambertian`` (:class:`~mi_twopass.scene.lambertian.LambertianShapes`: where a vertex may
     read the cache). ``cache`` is None where no vertex reads it (a finite max_depth, component
-    "direct", a scene whose bounding box misses shapes beside an infinite emitter). A plain
+    "direct", a scene whose bounding box misses shapes beside an infinite emitter). ``spike``:
+    the spike lists of the direct light (:class:`~mi_twopass.prepass.spike_grid.SpikePrepass`,
+    emitters only) or None. A plain
     class, not a dataclass: Dr.Jit would traverse a dataclass as a PyTree, and the render loop
     that reads it would take its arrays for loop state."""
 
     def __init__(self, scale, lambertian, alpha=0.0, patches=None, elements=None, solution=None,
-                 cache=None, near=None, split_complete=True):
+                 cache=None, near=None, split_complete=True, spike=None):
         self.scale, self.lambertian, self.alpha = scale, lambertian, alpha
         self.patches, self.elements, self.solution = patches, elements, solution
         self.cache, self.near, self.split_complete = cache, near, split_complete
+        self.spike = spike
+
+    @property
+    def grid(self):
+        """The spike-list grid of the direct light (None: emitter sampling)."""
+        return None if self.spike is None else self.spike.grid
 
     @property
     def nbytes(self) -> int:
+        lists = int(self.spike.grid.nbytes) if self.spike is not None else 0
         if self.cache is None:
-            return 0
+            return lists
         sol = int(self.solution.nbytes) if self.solution is not None else 0
-        return int(self.cache.nbytes + self.near.nbytes) + sol
+        return int(self.cache.nbytes + self.near.nbytes) + sol + lists
 
 
 def cache_alpha(scene, settings: CacheSettings, points=None) -> float:
@@ -654,7 +667,23 @@ def build(scene, settings: CacheSettings, seed: int, sensor=None) -> CachePrepas
     (§7). Only Lambertian surfaces carry radiosity into the cache: the shading points are the
     camera's first Lambertian hits, and the SH gather rays and the near-field triangles read 0
     on every other surface (the render traces paths there). ``sensor``: the camera whose
-    shading points the cache is built for (default: the scene's first)."""
+    shading points the cache is built for (default: the scene's first).
+
+    With ``settings.spike``, spike lists of the emitters for the direct light (Zimmerman &
+    Shirley §4, :func:`~mi_twopass.prepass.spike_grid.build_spike_prepass` on the coarse
+    solution, no virtual luminaires: reflected light is the cache's)."""
+    pre = _build_cache(scene, settings, seed, sensor)
+    if settings.spike is not None and len(scene.emitters()) > 1:
+        sp = settings.spike
+        pre.spike = build_spike_prepass(scene, sp, solution=pre.solution,
+                                        vl_threshold=float("inf"), e_high_rel=sp.e_high_rel,
+                                        e_low_rel=sp.e_low_rel, E_high=sp.E_high,
+                                        E_low=sp.E_low, seed=seed, sensor=sensor)
+    return pre
+
+
+def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None) -> CachePrepass:
+    """:func:`build` without the spike lists."""
     if not settings.ignore_media:
         check_no_media(scene)
     scale = scene_diagonal(scene)

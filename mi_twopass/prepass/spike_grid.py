@@ -633,8 +633,8 @@ class SpikeGrid:
         """Memory of the render-time structure: dense cell table, CSR lists and keys."""
         n_cells = int(np.prod(self.dims))
         nnz = int(self.source.shape[0])
-        return int(4 * n_cells + 4 * (self.count + 1) + nnz * (4 + 4 + 32 + 4)
-                   + self.sources.nbytes)
+        return int(4 * n_cells + 4 * (self.count + 1) + nnz * (4 + 4 + 32 + 4 + 8)
+                   + 4 * self.count + self.sources.nbytes)
 
     def list_of_source(self, lid) -> dict:
         """{source id: g} of list ``lid`` (numpy; for tests and inspection)."""
@@ -692,9 +692,13 @@ class SpikeGrid:
         return dr.select(ok, start, 0), dr.select(ok, end - start, 0)
 
     def contains(self, lid, sid, active=True):
-        """``(found, g)``: is source ``sid`` in list ``lid``, and its visibility fraction.
+        """``(found, g)``: is source ``sid`` in list ``lid``, and its visibility fraction."""
+        found, e = self.entry_of(lid, sid, active)
+        return found, dr.select(found, dr.gather(mi.Float, self._tables["g"], e, found), 0.0)
 
-        A binary search inside the list's CSR range (sources ascend within a list), as a
+    def entry_of(self, lid, sid, active=True):
+        """``(found, e)``: is source ``sid`` in list ``lid``, and its entry index in the CSR
+        arrays. A binary search inside the list's range (sources ascend within a list), as a
         symbolic loop: no table size enters the kernel, so a new prepass (other list lengths)
         reuses the compiled render kernel."""
         t = self._tables
@@ -715,8 +719,45 @@ class SpikeGrid:
                               label="spike_contains")
         found = ok & (lo < start + count)
         found &= dr.gather(mi.UInt32, src_table, lo, found) == sid
-        g = dr.select(found, dr.gather(mi.Float, t["g"], lo, found), 0.0)
-        return found, g
+        return found, lo
+
+    # -- selection by cell (the per-cell CDF) ----------------------------------------------
+    def cell_pick(self, lid, u, active=True):
+        """``(source, entry)`` drawn from list ``lid`` with the cell's fixed probabilities
+        (:func:`cell_weights`): the first entry whose cumulative probability exceeds ``u``, a
+        binary search over the list's CDF (no source is estimated at the shading point)."""
+        t = self._tables
+        ok = mi.Bool(active) & (lid != INVALID)
+        start, count = self.list_range(lid, ok)
+        cdf = t["cell_cdf"]
+        u = mi.Float(u)
+
+        def cond(lo, hi):
+            return lo < hi
+
+        def body(lo, hi):  # first index in [lo, hi) whose cdf is > u
+            mid = lo + (hi - lo) // 2
+            below = dr.gather(mi.Float, cdf, mid, lo < hi) <= u
+            return dr.select(below, mid + 1, lo), dr.select(below, hi, mid)
+
+        end = dr.select(ok, start + count, start)
+        lo, _ = dr.while_loop((mi.UInt32(start), end), cond, body, label="spike_cell_pick")
+        e = dr.minimum(lo, dr.maximum(end, 1) - 1)  # u at the very top: the last entry
+        ok &= count > 0
+        return dr.select(ok, dr.gather(mi.UInt32, t["source"], e, ok), INVALID), e
+
+    def cell_prob(self, lid, sid, active=True):
+        """The probability :meth:`cell_pick` draws ``sid`` from list ``lid`` (0 if unlisted)."""
+        found, e = self.entry_of(lid, sid, active)
+        return dr.select(found, dr.gather(mi.Float, self._tables["cell_prob"], e, found), 0.0)
+
+    def cell_mixture(self, lid_a, lid_b, defensive, support="delta"):
+        """``(ε, m_a, m_b)`` of the per-cell selection: as :meth:`mixture`, a list counting
+        where its cell weights sum above 0."""
+        t = self._tables
+        W_a = dr.gather(mi.Float, t["list_W"], lid_a, lid_a != INVALID)
+        W_b = dr.gather(mi.Float, t["list_W"], lid_b, lid_b != INVALID)
+        return self.mixture(lid_a, lid_b, W_a, W_b, defensive, support)
 
     # -- selection (§2.6, §4) ---------------------------------------------------------------
     def reservoir(self, lid, p, n, two_sided, u, r_thresh, active=True):
@@ -841,6 +882,49 @@ class SpikeGrid:
 
 # ----------------------------------------------------------------------------------------------
 # Building
+
+
+def cell_weights(sources: Sources, lists_l, lists_s, lists_g, points, normals, point_offsets):
+    """Per list entry the weight of the per-cell selection, w_e = g_e · mean_j L'_e(x_j, n_j)
+    over the cell's visibility points x_j (their surface normals n_j; §4's point weights
+    averaged over the cell, so that a shading point draws by a table instead of estimating
+    every listed source), and per entry its probability within the list (w_e / Σ_list w) and
+    the list's CDF. Returns ``(prob, cdf, W)`` (numpy; W per list)."""
+    n_entries = int(lists_s.size)
+    L = int(point_offsets.size - 1)
+    if n_entries == 0:
+        return np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(L, np.float64)
+    n_pts = np.diff(point_offsets)[lists_l]
+    e_idx = np.repeat(np.arange(n_entries), n_pts)
+    j_idx = point_offsets[lists_l][e_idx] + (np.arange(e_idx.size)
+                                              - np.repeat(np.cumsum(n_pts) - n_pts, n_pts))
+    sid = lists_s[e_idx]
+    value = estimate_record(
+        mi.Vector4f(*_dr_cols(np.column_stack([sources.center[sid], sources.radius[sid]]))),
+        mi.Vector4f(*_dr_cols(np.column_stack([sources.axis[sid], sources.intensity[sid]]))),
+        mi.UInt32(_flags(sources)[sid].astype(np.uint32)),
+        mi.Point3f(*_dr_cols(points[j_idx])), mi.Vector3f(*_dr_cols(normals[j_idx])),
+        mi.Bool(False), mi.Float(0.0))
+    value = np.asarray(value, dtype=np.float64)
+    mean = np.bincount(e_idx, weights=value, minlength=n_entries) / np.maximum(
+        np.bincount(e_idx, minlength=n_entries), 1)
+    w = np.asarray(lists_g, np.float64) * mean
+    W = np.bincount(lists_l, weights=w, minlength=L)
+    prob = w / np.where(W[lists_l] > 0, W[lists_l], 1.0)
+    # CDF within each list (ascending entries), its last entry exactly 1
+    csum = np.cumsum(prob)
+    first = np.concatenate([[0], np.cumsum(np.bincount(lists_l, minlength=L))])[:-1]
+    base = np.where(first > 0, csum[np.maximum(first - 1, 0)], 0.0)
+    cdf = csum - base[lists_l]
+    last = np.concatenate([first[1:], [n_entries]]) - 1
+    has = (np.bincount(lists_l, minlength=L) > 0) & (W > 0)
+    cdf[last[has]] = 1.0
+    return prob.astype(np.float32), cdf.astype(np.float32), W
+
+
+def _dr_cols(a):
+    """Columns of a numpy (n, k) array as Dr.Jit Floats."""
+    return [mi.Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for i in range(a.shape[1])]
 
 
 @dataclass(frozen=True)
@@ -1097,6 +1181,7 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
     keep = order[rank < settings.cell_points]
     keep = keep[np.argsort(inverse[keep], kind="stable")]
     points = P[keep] + Nrm[keep] * (settings.point_offset_rel * diag)
+    point_normals = Nrm[keep]
     point_offsets = np.concatenate([[0], np.cumsum(np.bincount(inverse[keep], minlength=L))])
 
     # influence threshold: a fraction of the typical (median) patch irradiance
@@ -1151,6 +1236,8 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
     n_cells = int(np.prod(dims))
     cell_list = np.full(n_cells, INVALID, np.uint32)
     cell_list[list_cell] = np.arange(L, dtype=np.uint32)
+    prob, cdf, W_cell = cell_weights(sources, lists_l, lists_s, lists_g, points, point_normals,
+                                     point_offsets)
     grid._tables = Tables(
         cell_list=mi.UInt32(cell_list),
         offsets=mi.UInt32(offsets.astype(np.uint32)),
@@ -1160,7 +1247,10 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
         entry_sphere=mi.Float(_packed4(sources.center[lists_s], sources.radius[lists_s])),
         entry_axis_gI=mi.Float(_packed4(sources.axis[lists_s],
                                         sources.intensity[lists_s] * lists_g)),
-        entry_flags=mi.UInt32(_pad(_flags(sources)[lists_s], np.uint32)))
+        entry_flags=mi.UInt32(_pad(_flags(sources)[lists_s], np.uint32)),
+        # the per-cell selection (cell_weights): entry probabilities, CDFs, list sums
+        cell_prob=mi.Float(_pad(prob, np.float32)), cell_cdf=mi.Float(_pad(cdf, np.float32)),
+        list_W=mi.Float(_pad(W_cell.astype(np.float32), np.float32)))
     lengths = np.diff(offsets)
     grid.stats = dict(
         grid_dims=[int(v) for v in dims], cell_size=float(h), cells_with_lists=int(L),

@@ -7,11 +7,14 @@ from mi_twopass.compose import cost
 
 
 def test_every_forced_combination_either_names_rows_or_fails_naming_the_choices():
-    assert [c.plugin for c in cost.matching(direct="spike")] == ["spike_gather", "spike_gather"]
+    assert [c.plugin for c in cost.matching(direct="spike")] == ["spike_gather", "spike_gather",
+                                                                 "radiance_cache"]
+    assert [c.props for c in cost.matching(direct="spike", indirect="cache")] == [
+        (("direct", "spike"),)]
     assert [c.plugin for c in cost.matching(caustics="rex")] == ["rex"]
     assert len(cost.matching()) == len(cost.COMPOSITIONS)
-    with pytest.raises(ValueError, match="no composition has direct='spike', indirect='cache'"):
-        cost.matching(direct="spike", indirect="cache")
+    with pytest.raises(ValueError, match="no composition has direct='spike', indirect='rex'"):
+        cost.matching(direct="spike", indirect="rex")
 
 
 def test_best_case_removes_only_the_parts_a_technique_serves():
@@ -21,6 +24,7 @@ def test_best_case_removes_only_the_parts_a_technique_serves():
     assert parts.best_case(rows["spike", "path"]) == pytest.approx(0.4)
     assert parts.best_case(rows["emitter", "cache"]) == pytest.approx(0.7)
     assert parts.best_case(rows["spike", "radiosity"]) == pytest.approx(0.1)
+    assert parts.best_case(rows["spike", "cache"]) == pytest.approx(0.1)
     assert parts.best_case(rows["emitter", "rex"]) == pytest.approx(0.0, abs=1e-12)
 
 

@@ -62,9 +62,11 @@ def _sampler(n, seed=0):
     return sampler
 
 
-def test_spike_sampler_pmf_is_what_it_sampled_with_and_sums_to_one(lit_floor):
+@pytest.mark.parametrize("selection", SpikeListSampler.SELECTIONS)
+def test_spike_sampler_pmf_is_what_it_sampled_with_and_sums_to_one(lit_floor, selection):
     scene, grid = lit_floor
-    lights = SpikeListSampler(grid, len(scene.emitters()), r_thresh=0.0, defensive=0.1)
+    lights = SpikeListSampler(grid, len(scene.emitters()), r_thresh=0.0, defensive=0.1,
+                              selection=selection)
     n, S = 256, grid.sources.count
     si = _floor_points(scene, n, 1)
     bsdf = si.bsdf()
@@ -164,7 +166,8 @@ def _direct_mean(lights, scene, si, bsdf, k, fused=False):
     return v.mean(axis=1), v.std(axis=1) / np.sqrt(k)
 
 
-def test_spike_lists_and_mitsubas_choice_estimate_the_same_direct_light(lit_floor):
+@pytest.mark.parametrize("selection", SpikeListSampler.SELECTIONS)
+def test_spike_lists_and_mitsubas_choice_estimate_the_same_direct_light(lit_floor, selection):
     """Unbiasedness of the interface: the same estimator (one source, the emitter's own
     direction sampling and a shadow ray, one BSDF sample, MIS between them) with either
     sampler; the point means agree within their errors (z-test over 32 points)."""
@@ -172,7 +175,8 @@ def test_spike_lists_and_mitsubas_choice_estimate_the_same_direct_light(lit_floo
     si = _floor_points(scene, 32, 4)
     bsdf = si.bsdf()
     k = 20_000
-    spike = SpikeListSampler(grid, len(scene.emitters()), r_thresh=0.0, defensive=0.1)
+    spike = SpikeListSampler(grid, len(scene.emitters()), r_thresh=0.0, defensive=0.1,
+                             selection=selection)
     m_s, e_s = _direct_mean(spike, scene, si, bsdf, k)
     m_u, e_u = _direct_mean(EmitterSampler(scene), scene, si, bsdf, k)
     m_f, e_f = _direct_mean(None, scene, si, bsdf, k, fused=True)
@@ -184,3 +188,21 @@ def test_spike_lists_and_mitsubas_choice_estimate_the_same_direct_light(lit_floo
         assert abs(z.mean()) * np.sqrt(z.size) < 4.0
     # the lists' point: less noise than the uniform choice on this scene
     assert np.median(e_s / e_u) < 1.0
+
+
+def test_cell_selection_draws_by_its_table(lit_floor):
+    """Chi²-free check of the per-cell CDF: at one list, 100k draws land on each entry with the
+    tabled probability (within 5 sigma), and only on listed sources."""
+    scene, grid = lit_floor
+    lid = int(np.argmax(grid.lengths))
+    a, b = int(grid.offsets[lid]), int(grid.offsets[lid + 1])
+    n = 100_000
+    u = mi.Float(np.random.default_rng(2).uniform(size=n).astype(np.float32))
+    sid, e = grid.cell_pick(dr.full(mi.UInt32, lid, n), u)
+    sid, e = np.array(sid), np.array(e)
+    prob = np.array(grid._tables["cell_prob"])[a:b]
+    np.testing.assert_allclose(prob.sum(), 1.0, rtol=1e-5)
+    assert np.all((e >= a) & (e < b)) and np.all(sid == grid.source[e])
+    counts = np.bincount(e - a, minlength=b - a)
+    sigma = np.sqrt(n * prob * (1 - prob)) + 1.0
+    assert np.all(np.abs(counts - n * prob) < 5 * sigma)

@@ -44,8 +44,8 @@ def test_registered_and_loadable():
 
 
 @pytest.mark.parametrize("props, message", [
-    ({"direct": "spike", "indirect": "cache"},
-     "no composition has direct='spike', indirect='cache'"),
+    ({"direct": "spike", "indirect": "rex"},
+     "no composition has direct='spike', indirect='rex'"),
     ({"caustics": "rex", "direct": "spike"}, "no composition has direct='spike', caustics='rex'"),
     ({"direct": "lists"}, "direct='lists': expected one of auto, emitter, spike"),
     ({"pilot_pixels": 2}, "pilot_pixels=2: must be >= 16"),
