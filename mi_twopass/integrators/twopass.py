@@ -67,8 +67,8 @@ class TwoPassChooser(TwoPassIntegrator):
            (one emitter for spike lists, no Lambertian surface, a finite max_depth for a far
            field); else build its prepass and pilot it on the same pixels
         3. render with the candidate of least predicted relMSE × seconds,
-           (prepass + N·t) × (v/N + b²), N the render's samples per pixel, b its image-mean
-           bias against the path pilot
+           (prepass + N·t) × (v/N + b²), N the render's samples per pixel, b² its squared
+           relative bias against the path pilot, pixel by pixel
 
     Every composition is one of the suite's estimators (or ``path``), each consistent or
     within its own stated bias bound, so every part of path space is estimated exactly once

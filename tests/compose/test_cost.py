@@ -51,6 +51,18 @@ def test_bias_is_zero_for_pilots_of_the_same_distribution_and_found_when_large()
     assert b2 == pytest.approx(0.01, rel=0.2)
 
 
+def test_bias_that_changes_sign_over_the_image_is_found_though_the_mean_is_right():
+    """+10 % on half the pixels, −10 % on the other half: the image mean is right, the relMSE
+    floor is 0.01 (relative to the true pixel values 1)."""
+    rng = np.random.default_rng(4)
+    a = rng.exponential(1.0, size=(1024, 144, 3))
+    b = rng.exponential(1.0, size=(1024, 144, 3))
+    sign = np.where(np.arange(1024) % 2 == 0, 1.0, -1.0)[:, None, None]
+    b2, ratio = cost.bias_squared(a * (1.0 + 0.1 * sign), b)
+    assert ratio == pytest.approx(1.0, abs=0.01)
+    assert b2 == pytest.approx(0.01, rel=0.25)
+
+
 def test_score_is_predicted_error_times_seconds_and_prepass_amortises():
     m = cost.Measured(prepass_seconds=2.0, seconds_per_spp=0.01, variance=0.5, bias2=1e-4,
                       mean_ratio=1.0)
