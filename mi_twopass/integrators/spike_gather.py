@@ -153,6 +153,11 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
          the paper's; rounds of 10). Most of them go to pairs that are wholly occluded (the
          rule goes on while one or fewer rays arrive): on ``many_lights.xml`` 20 gave the same
          bias and relMSE with 1.6 M instead of 7.6 M rays (README "Results").
+     * - visibility_occluded_rays
+       - |int|
+       - A pair none of whose first this many rays reached the source is left out of the
+         list (g = 0) without the remaining rounds (default: 20; ≥ ``visibility_max_rays``:
+         the paper's rule). ``complete=true`` stays unbiased for a source left out.
      * - camera_res
        - |int|
        - Rays along the film's longer side of the camera pass that finds the cells needing a
@@ -247,6 +252,9 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         self.influence_rel = read_float(props, "influence_rel", 0.01, minimum=0.0)
         self.influence = read_float(props, "influence", 0.0, minimum=0.0) \
             if "influence" in props else None
+        self.visibility_occluded_rays = read_int(
+            props, "visibility_occluded_rays", 20, minimum=10, maximum=10_000,
+            why="rays per (cell, source) pair before an unreached source is left out")
         self.visibility_max_rays = read_int(props, "visibility_max_rays", 100, minimum=10,
                                             maximum=10_000, why="rays per (cell, source) pair: "
                                             "the prepass's time grows with it")
@@ -268,7 +276,8 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
 
     def settings(self):
         return (self.grid_res, self.e_high_rel, self.e_low_rel, self.e_high, self.e_low,
-                self.influence_rel, self.influence, self.visibility_max_rays, self.camera_res,
+                self.influence_rel, self.influence, self.visibility_max_rays,
+                self.visibility_occluded_rays, self.camera_res,
                 self.cell_points, self.radiosity, self.vl_threshold_used,
                 self.gather_cells, self.r_thresh_rel, self.r_thresh_abs)
 
@@ -277,6 +286,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
                              cell_points=self.cell_points, influence=self.influence,
                              influence_rel=self.influence_rel,
                              visibility_max_rays=self.visibility_max_rays,
+                             visibility_occluded_rays=self.visibility_occluded_rays,
                              gather_reach=self.r_thresh(scene) if self.gather_cells else 0.0,
                              vl_threshold=self.vl_threshold_used, e_high_rel=self.e_high_rel,
                              e_low_rel=self.e_low_rel, E_high=self.e_high, E_low=self.e_low)

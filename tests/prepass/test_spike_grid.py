@@ -45,7 +45,7 @@ def closed_box(center, half):
 # ---------------------------------------------------------------------------------------------
 # The self-refining visibility rule (§4) against a plain per-pair reference
 # ---------------------------------------------------------------------------------------------
-def _reference_rule(hits, max_rays=100):
+def _reference_rule(hits, max_rays=100, occluded_rays=None):
     """Scalar reference: ``hits[k]`` rays of round k reach the source."""
     H, n, prev = 0, 0, 0.0
     for k, h in enumerate(hits[:max_rays // VIS_ROUND]):
@@ -53,6 +53,8 @@ def _reference_rule(hits, max_rays=100):
         n += VIS_ROUND
         if k == 0 and h == VIS_ROUND:
             return 1.0, n
+        if occluded_rays is not None and H == 0 and n >= occluded_rays:
+            return 0.0, n
         if k > 0 and h > 1 and abs(h / VIS_ROUND - prev) <= 0.1 + 1e-9:
             return H / n, n
         prev = H / n
@@ -82,6 +84,28 @@ def test_self_refining_visibility_matches_the_rule(max_rays):
     mid = slice(1000, None)
     sigma = np.sqrt(p[mid] * (1 - p[mid]) / rays[mid]) + 0.05
     assert np.mean(np.abs(g[mid] - p[mid]) < 4 * sigma) > 0.97
+
+
+def test_pairs_no_ray_reached_are_excluded_after_the_occluded_rays():
+    """``occluded_rays``: a pair with no hit after that many rays is done with g = 0; every
+    other pair follows the paper's rule unchanged."""
+    rng = np.random.default_rng(5)
+    n_pairs = 2000
+    p = np.concatenate([np.zeros(400), rng.uniform(0, 0.3, 1600)])
+    table = rng.binomial(VIS_ROUND, p[:, None], size=(n_pairs, 10))
+
+    def trace(pairs, k):
+        return table[pairs, k]
+
+    g, rays = estimate_visibility(trace, n_pairs, 100, occluded_rays=20)
+    ref = np.array([_reference_rule(table[i], 100, 20) for i in range(n_pairs)])
+    assert np.allclose(g, ref[:, 0]) and np.array_equal(rays, ref[:, 1])
+    assert np.all(g[:400] == 0) and np.all(rays[:400] == 20)  # 20 rays, not 100
+    g_paper, rays_paper = estimate_visibility(trace, n_pairs, 100)
+    first_two = table[:, :2].sum(axis=1)
+    same = first_two > 0  # a ray reached the source early: the paper's rule throughout
+    assert np.array_equal(g[same], g_paper[same]) and np.array_equal(rays[same], rays_paper[same])
+    assert rays.sum() < 0.7 * rays_paper.sum()
 
 
 # ---------------------------------------------------------------------------------------------
