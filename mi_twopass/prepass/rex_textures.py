@@ -907,7 +907,9 @@ class FinalShoot:
     def samples(self, start, size, sampler):
         """(emitter, sample2, sample3, weight scale |quadrant| / reps) of lanes
         [start, start + size); the jitter comes from ``sampler``."""
-        g = dr.arange(mi.UInt32, start, start + size)
+        # the batch's first lane opaque: a literal start compiled a new kernel per batch and
+        # per photon budget (every render seed's budget differs), ~0.1 s each
+        g = dr.arange(mi.UInt32, size) + dr.opaque(mi.UInt32, int(start))
         off = self.d_off
         e = dr.binary_search(0, self.E - 1,
                              lambda i: dr.gather(mi.UInt32, off, i + 1) <= g)
@@ -1005,7 +1007,8 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, bar=N
                     dr.zeros(mi.UInt32, capacity))
             counter = dr.zeros(mi.UInt32, 1)
             n_rays, first_hit = _photon_trace(
-                scene, tables, ray, flux, sampler, recs, counter, capacity,
+                scene, tables, ray, flux, sampler, recs, counter,
+                dr.opaque(mi.UInt32, capacity),  # a literal compiled a kernel per batch size
                 mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth))
             dr.eval(n_rays, first_hit, *recs)
             count = int(counter[0])

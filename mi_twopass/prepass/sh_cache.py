@@ -50,6 +50,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import sh
+from ..host_arrays import columns
 from ..scene.bounds import scene_bounds, scene_diagonal
 from ..scene.patches import build_patches
 from ..seeds import hash31
@@ -138,8 +139,7 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
         if _count(active) == 0:
             break
     keep = np.asarray(found)
-    P = np.asarray(p).reshape(3, -1).T[keep] if np.asarray(p).ndim == 2 else np.asarray(p)[keep]
-    N = np.asarray(nrm).reshape(3, -1).T[keep] if np.asarray(nrm).ndim == 2 else np.asarray(nrm)[keep]
+    P, N = columns(p)[keep], columns(nrm)[keep]
     return P.astype(np.float64), N.astype(np.float64), rays
 
 

@@ -108,6 +108,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..host_arrays import columns
 from ..seeds import numpy_rng, splitmix64
 from ..tables import Tables
 from .radiosity import RadiositySettings
@@ -140,8 +141,9 @@ def _rng(n, seed, salt, first=0):
 
 
 def _np3(v):
-    """A Dr.Jit 3-vector array as a numpy (n, 3) float64 array."""
-    return np.array(v, dtype=np.float64).reshape(3, -1).T
+    """A Dr.Jit 3-vector array as a numpy (n, 3) float64 array
+    (:func:`mi_twopass.host_arrays.columns`: no kernel per size)."""
+    return columns(v)
 
 
 def _dr3(a, cls):

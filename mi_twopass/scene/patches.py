@@ -49,6 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..host_arrays import columns
 from ..seeds import numpy_rng
 from ..tables import Tables
 from .lambertian import is_lambertian
@@ -776,8 +777,8 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     bsdf = si.bsdf()
     rho = bsdf.eval_diffuse_reflectance(si, True)
     emitted = si.emitter(scene).eval(si, True)
-    rho_np = np.nan_to_num(np.array(rho, dtype=np.float64).T.reshape(n, 3), nan=0.0)
-    le_np = np.nan_to_num(np.array(emitted, dtype=np.float64).T.reshape(n, 3), nan=0.0)
+    rho_np = np.nan_to_num(columns(rho), nan=0.0)
+    le_np = np.nan_to_num(columns(emitted), nan=0.0)
 
     side_normal = Nrm * wi_z[:, None]  # the patch's side: the back patch looks the other way
     enclosed = _probe_enclosed(scene, P, side_normal, delta, rng)
