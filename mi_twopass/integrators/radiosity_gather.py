@@ -136,15 +136,17 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         pre = self.structure
         sol = pre.solution
         far = gather_ray & si.is_valid() & (si.t >= r_thresh)
-        far &= sol.cached_at(si, far)
-        pid = sol.patches.lookup(si, far)
+        receiver = sol.receiver_at(si, far)  # looked up once for both questions
+        far &= sol.receiver_cached(receiver, far)
+        pid = sol.patches.lookup(si, far) if sol.elements is not None else receiver
         if pre.simplified:
             si = pre.scene.ray_intersect(ray, far)
             pid = sol.patches.lookup(si, far & si.is_valid())
+            receiver = sol.receiver_at(si, far & si.is_valid())
         counted = far & ~pre.virtual.contains(pid, far)
         if sol.elements is None:
             return sol.patch_reflected_radiance(pid, counted), far
-        return sol.reflected_radiance(si, counted), far
+        return sol.receiver_reflected_radiance(receiver, counted), far
 
     def sample_virtual(self, scene, sampler, si, bsdf, ctx, r_thresh, active, scale=1.0):
         """One explicit sample of a virtual luminaire: f · (B_r/π) · G / pdf, for |y−x| ≥ r_thresh."""

@@ -378,13 +378,15 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
 
             # -- Far gather ray: B_r/pi of the patch hit ends the path, unless it is a VL of
             #    the lists used (then it was sampled explicitly).
-            far = gather_ray & si.is_valid() & (si.t >= r_thresh) & sol.cached_at(si, active)
+            far = gather_ray & si.is_valid() & (si.t >= r_thresh)
+            hit_receiver = sol.receiver_at(si, far)  # looked up once for both questions
+            far &= sol.receiver_cached(hit_receiver, far)
             if want_indirect:
                 pid = sol.patches.lookup(si, far)
                 vl_sid = src.source_of_patch(pid, far & from_list)
                 vl_listed = lights.listed(prev_lights, vl_sid, far & from_list)
                 # the receiving element hit (the patch's value without elements)
-                L += beta * sol.reflected_radiance(si, far & ~vl_listed)
+                L += beta * sol.receiver_reflected_radiance(hit_receiver, far & ~vl_listed)
 
             active_next = active & si.is_valid() & ~far & (depth + 1 < max_depth)
             bsdf = si.bsdf(ray)

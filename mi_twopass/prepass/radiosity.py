@@ -128,19 +128,34 @@ class RadiositySolution:
         before 2026-11-25) sent 41–52 % of the office's first gather rays on as paths because
         their patch was cut (40 % of the patch area, 11 % of the element area), and radiosity_gather's
         indirect noise per sample was twice what it is with the element's rule."""
-        if self.elements is not None:
-            return self.elements.is_diffuse_at(si, active)
-        return self.patches.is_diffuse_at(si, active)
+        return self.receiver_cached(self.receiver_at(si, active), active)
 
     def reflected_radiance(self, si, active=True):
         """B_reflected/π at ``si`` (``mi.Color3f``), 0 where there is no patch.
 
         With ``elements`` the value of the element hit (the finer receiving mesh: the far gather
         reads it, see :func:`solve_radiosity`), else the patch's."""
+        return self.receiver_reflected_radiance(self.receiver_at(si, active), active)
+
+    # the receiver hit, looked up once per vertex: cached_at and reflected_radiance read it
+    def receiver_at(self, si, active=True):
+        """Id of the receiver hit by ``si``: its element with elements, else its patch (the
+        count, an invalid id, where none). A gather loop looks it up once and asks both
+        :meth:`receiver_cached` and :meth:`receiver_reflected_radiance` (each lookup is a
+        dozen gathers)."""
+        receivers = self.elements if self.elements is not None else self.patches
+        return receivers.lookup(si, active)
+
+    def receiver_cached(self, rid, active=True):
+        """:meth:`cached_at` of the receiver ``rid`` (:meth:`receiver_at`)."""
+        receivers = self.elements if self.elements is not None else self.patches
+        return receivers.gather("is_diffuse", rid, active)
+
+    def receiver_reflected_radiance(self, rid, active=True):
+        """:meth:`reflected_radiance` of the receiver ``rid`` (:meth:`receiver_at`)."""
         if self.elements is not None:
-            eid = self.elements.lookup(si, active)
-            return dr.gather(mi.Color3f, self._L_elements, eid, active)
-        return self.patch_reflected_radiance(self.patches.lookup(si, active), active)
+            return dr.gather(mi.Color3f, self._L_elements, rid, active)
+        return self.patch_reflected_radiance(rid, active)
 
     def radiosity(self, si, active=True):
         """Total radiosity B of the patch at ``si`` (W/m², for debug views), 0 where none."""
