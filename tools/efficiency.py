@@ -11,14 +11,11 @@ miss). Prints the mean relMSE, the fastest render, and their product (lower is b
 error reached per second of rendering, the prepass left out).
 """
 import argparse
-import time
 
 import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
-import drjit as dr
-import mitsuba as mi
 import numpy as np
 
-from mi_twopass.evaluation.harness import make_integrator
+from mi_twopass.evaluation.harness import make_integrator, render_only_seconds
 from mi_twopass.evaluation.metrics import relmse
 from mi_twopass.evaluation.reference import reference_image
 from mi_twopass.scenefile import load_scene
@@ -28,12 +25,8 @@ def measure(scene, ref, spec: str, spp: int, seeds: int) -> tuple[float, float]:
     """(mean relMSE, fastest render seconds) of ``seeds`` renders of ``spec``."""
     errors, seconds = [], []
     for seed in range(1, seeds + 1):
-        integrator = make_integrator(spec)
-        np.asarray(mi.render(scene, integrator=integrator, spp=4, seed=seed))
-        dr.sync_thread()
-        t0 = time.perf_counter()
-        image = np.asarray(mi.render(scene, integrator=integrator, spp=spp, seed=seed))
-        seconds.append(time.perf_counter() - t0)
+        image, s = render_only_seconds(scene, make_integrator(spec), spp, seed)
+        seconds.append(s)
         errors.append(relmse(image[..., :3], ref))
     return float(np.mean(errors)), float(min(seconds))
 

@@ -11,28 +11,17 @@ via the numpy conversion; the fastest repeat counts (a 2-core machine is noisy).
 and the ratio to the first spec's.
 """
 import argparse
-import time
 
 import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
-import drjit as dr
-import mitsuba as mi
-import numpy as np
 
-from mi_twopass.evaluation.harness import make_integrator
+from mi_twopass.evaluation.harness import make_integrator, render_only_seconds
 from mi_twopass.scenefile import load_scene
 
 
 def render_seconds(scene, spec: str, spp: int, repeats: int) -> float:
     """Fastest of ``repeats`` renders of ``spp`` samples per pixel, the prepass reused."""
     integ = make_integrator(spec)
-    np.asarray(mi.render(scene, integrator=integ, spp=4, seed=0))
-    best = float("inf")
-    for _ in range(repeats):
-        dr.sync_thread()
-        t0 = time.perf_counter()
-        np.asarray(mi.render(scene, integrator=integ, spp=spp, seed=0))
-        best = min(best, time.perf_counter() - t0)
-    return best
+    return min(render_only_seconds(scene, integ, spp, 0)[1] for _ in range(repeats))
 
 
 def main():

@@ -84,6 +84,17 @@ def timed_render(scene, spec: str, spp: int, seed: int):
     return image, seconds, stats
 
 
+def render_only_seconds(scene, integrator, spp: int, seed: int) -> tuple[np.ndarray, float]:
+    """(image, seconds) of a render whose prepass and kernels are already built: an untimed
+    4-spp render with the same ``seed`` first (the prepass's seed is the render's, so the timed
+    render reuses it), then ``spp`` timed after ``dr.sync_thread()`` to the numpy copy."""
+    np.asarray(mi.render(scene, integrator=integrator, spp=4, seed=seed))
+    dr.sync_thread()
+    t0 = time.perf_counter()
+    image = np.asarray(mi.render(scene, integrator=integrator, spp=spp, seed=seed))
+    return image, time.perf_counter() - t0
+
+
 def _loglog_interp(xs, ys, x):
     """Interpolate y(x) linearly in log-log between the bracketing points; None outside."""
     for (x0, y0), (x1, y1) in zip(zip(xs, ys), zip(xs[1:], ys[1:])):
