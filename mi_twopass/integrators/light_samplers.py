@@ -109,6 +109,11 @@ class LightSampler:
         """Index in ``scene.emitters()`` of an emitter source."""
         raise NotImplementedError
 
+    def is_emitter(self, source, active):
+        """The lanes whose ``source`` is an emitter (other sources, e.g. virtual luminaires,
+        are sampled by their integrator)."""
+        return mi.Bool(active) & (source != INVALID)
+
     def sample_emitter_mis(self, scene, si, bsdf, bsdf_ctx, sampler, active, scale=1.0):
         """``(f·Le·w/(P·p), cast, ctx)``: :func:`sample_emitter_mis` with this sampler."""
         return sample_emitter_mis(self, scene, si, bsdf, bsdf_ctx, sampler, active, scale)
@@ -295,6 +300,10 @@ class SpikeListSampler(LightSampler):
         active = mi.Bool(active) & (source != INVALID)
         return active & self.sources.gather("is_patch", source, active)
 
+    def is_emitter(self, source, active):
+        active = mi.Bool(active) & (source != INVALID)
+        return active & ~self.is_patch(source, active)
+
     def source_of_emitter(self, emitter, active):
         return self.sources.source_of_emitter(emitter, active)
 
@@ -314,9 +323,7 @@ def sample_emitter_mis(lights: LightSampler, scene, si, bsdf, bsdf_ctx, sampler,
     n, two_sided = receiver(si, bsdf)
     sid, P, ctx = lights.sample(si, n, two_sided, sampler, active)
     u_dir = sampler.next_2d()
-    ok = active & (sid != INVALID) & (P > 0)
-    if isinstance(lights, SpikeListSampler):
-        ok &= ~lights.is_patch(sid, ok)
+    ok = lights.is_emitter(sid, active & (P > 0))
     emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), lights.emitter_index(sid, ok), ok)
     ds, spec = emitter.sample_direction(si, u_dir, ok)
     cast = ok & (ds.pdf != 0.0) & dr.any(spec != 0.0)
