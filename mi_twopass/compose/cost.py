@@ -256,7 +256,7 @@ def bias_squared(values: np.ndarray, path_values: np.ndarray) -> tuple[float, fl
         return 0.0, ratio
     # R_p from the first half of each pilot's samples, the difference from the second: a
     # difference and a denominator from the same samples are correlated (a pixel drawn high
-    # has a larger difference and a larger R), which biased b² low by ~20 %
+    # has a larger difference and a larger R), which biased b² low
     h_c, h_p = n_c // 2, n_p // 2
     R = 0.5 * (values[:, :h_c].mean(axis=1) + path_values[:, :h_p].mean(axis=1))
     a, b = values[:, h_c:], path_values[:, h_p:]
