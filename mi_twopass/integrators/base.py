@@ -24,6 +24,7 @@ import numpy as np
 
 from ..prepass.radiosity import RadiositySettings
 from .light_samplers import EmitterSampler
+from .pathtrace import by_component
 
 #: keys every integrator reports after a render
 STAT_KEYS = (
@@ -310,6 +311,17 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         ``lights`` is the integrator's :meth:`light_sampler` for ``scene``."""
         return (dr.opaque(mi.Float, scale), self.depth_bound, self.want_direct,
                 self.want_indirect, mi.BSDFContext(), self.light_sampler(scene))
+
+    def emission_met(self, scene, lights, si, beta, n_nondelta, prev, active):
+        """β·Le(y → x)·w_MIS: the emission met at ``si`` by the path's last ray, weighted by
+        ``lights`` against its choice at the vertex the ray left, ``prev = (prev_si,
+        prev_bsdf_pdf, prev_bsdf_delta, prev_lights)`` (:meth:`LightSampler.emission_mis`), and
+        kept where its component is rendered: direct where met from the first non-delta vertex
+        (``n_nondelta ≤ 1``, :func:`~mi_twopass.integrators.pathtrace.by_component`)."""
+        prev_si, prev_bsdf_pdf, prev_bsdf_delta, prev_lights = prev
+        Le = lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf, prev_bsdf_delta,
+                                 active)
+        return by_component(beta * Le, n_nondelta <= 1, self.want_direct, self.want_indirect)
 
     # -- to override ------------------------------------------------------------------------
     def light_sampler(self, scene):

@@ -26,7 +26,7 @@ import mitsuba as mi
 
 from ..scene.bounds import ray_scale
 from .base import TwoPassIntegrator
-from .pathtrace import bsdf_step, path_start
+from .pathtrace import bsdf_step, next_hit, path_start
 
 
 class ComponentPathIntegrator(TwoPassIntegrator):
@@ -61,17 +61,12 @@ class ComponentPathIntegrator(TwoPassIntegrator):
         scale, max_depth, _, _, ctx, lights = \
             self.loop_constants(scene, ray_scale(scene))
         ray, _, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
-            prev_lights, active = path_start(ray, active, lights)
-        direct = mi.Spectrum(0.0)
-        caustic = mi.Spectrum(0.0)
-        indirect = mi.Spectrum(0.0)
-        caustic_first = mi.Spectrum(0.0)
-        n_implicit = mi.UInt32(0)
-        n_explicit = mi.UInt32(0)
+            prev_lights, active, n_implicit, n_explicit = path_start(ray, active, lights)
+        direct, caustic, indirect, caustic_first = (mi.Spectrum(0.0) for _ in range(4))
 
         while dr.hint(active, label="component_path"):
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
-            n_implicit += dr.select(active & (depth > 0), 1, 0)
+            si, gather_ray, n_implicit = next_hit(scene, ray, depth, prev_bsdf_delta, active,
+                                                  n_implicit)
             Le = beta * lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
                                             prev_bsdf_delta, active)
             is_caustic = prev_bsdf_delta & (n_nondelta >= 1)

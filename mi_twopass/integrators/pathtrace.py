@@ -17,12 +17,23 @@ from ..rays import spawn_ray, spawn_ray_to
 def path_start(ray, active, lights):
     """The loop state of a path at its camera ray, in the order the gather loops unpack it:
     ``(ray, L, β, η, depth, non-delta vertices so far, previous interaction, its BSDF pdf,
-    whether its BSDF sample was delta, the light sampler's context there, active lanes)``; the
-    camera counts as a delta vertex (emission seen directly gets MIS weight 1), and
-    ``lights`` (:mod:`mi_twopass.integrators.light_samplers`) gives its context's start."""
+    whether its BSDF sample was delta, the light sampler's context there, active lanes,
+    implicit rays, explicit rays)``; the camera counts as a delta vertex (emission seen directly
+    gets MIS weight 1), ``lights`` (:mod:`mi_twopass.integrators.light_samplers`) gives its
+    context's start and the two ray counters (``STAT_KEYS``) start at zero."""
     return (mi.Ray3f(ray), mi.Spectrum(0.0), mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0),
             mi.UInt32(0), dr.zeros(mi.SurfaceInteraction3f), mi.Float(1.0), mi.Bool(True),
-            lights.start(), mi.Bool(active))
+            lights.start(), mi.Bool(active), mi.UInt32(0), mi.UInt32(0))
+
+
+def next_hit(scene, ray, depth, prev_bsdf_delta, active, n_implicit):
+    """The hit of a path's next ray, whether that ray is an implicit (gather) ray, sampled from
+    the BSDF of a non-delta vertex (the camera ray and rays leaving delta vertices are not;
+    docs/design.md, "Stats"), and the implicit-ray counter with it counted:
+    ``(si, gather_ray, n_implicit)``. Camera rays (depth 0) are traced as coherent."""
+    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
+    gather_ray = active & ~prev_bsdf_delta
+    return si, gather_ray, n_implicit + dr.select(gather_ray, 1, 0)
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -158,6 +169,6 @@ def first_nondelta_hit(scene, sampler, ray, active, max_depth=MAX_DELTA_DEPTH):
     return trace_until(scene, sampler, ray, active, is_smooth, max_depth)
 
 
-__all__ = ["trace_until", "is_smooth", "first_nondelta_hit", "path_start", "mis_weight",
-           "emission_mis", "emitter_sample_mis",
+__all__ = ["trace_until", "is_smooth", "first_nondelta_hit", "path_start", "next_hit",
+           "mis_weight", "emission_mis", "emitter_sample_mis",
            "by_component", "russian_roulette", "bsdf_continue", "roulette_step", "bsdf_step"]

@@ -15,7 +15,7 @@ from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_i
                    read_radiosity_budget)
 from .light_samplers import SpikeListSampler
 from .pathtrace import (MAX_DELTA_DEPTH, bsdf_step, by_component, first_nondelta_hit,
-                        path_start)
+                        next_hit, path_start)
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
 DIRECT_MODES = ("emitter", "spike")
@@ -343,22 +343,18 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         reads_cache = self.reads_cache and s.cache is not None
 
         ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
-            prev_lights, active = path_start(ray, active, lights)
+            prev_lights, active, n_implicit, n_explicit = path_start(ray, active, lights)
         camera_chain = mi.Bool(True)  # only delta vertices so far: a diffuse hit reads the cache
         after_cache = mi.Bool(False)  # the previous vertex read the cache
-        n_implicit = mi.UInt32(0)
-        n_explicit = mi.UInt32(0)
         n_cache = mi.UInt32(0)
         visits = mi.UInt32(0)
 
         while dr.hint(active, label="radiance_cache"):
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
-            n_implicit += dr.select(active & ~prev_bsdf_delta, 1, 0)
+            si, gather_ray, n_implicit = next_hit(scene, ray, depth, prev_bsdf_delta, active,
+                                                  n_implicit)
 
-            # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            Le = lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
-                                     prev_bsdf_delta, active)
-            L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
+            L += self.emission_met(scene, lights, si, beta, n_nondelta,
+                                   (prev_si, prev_bsdf_pdf, prev_bsdf_delta, prev_lights), active)
 
             bsdf = si.bsdf(ray)
             flags = bsdf.flags()

@@ -15,7 +15,8 @@ from ..prepass.radiosity import build as build_radiosity
 from ..scene.bounds import ray_scale
 from ..scenefile import SceneFileError
 from .base import FarGatherIntegrator, read_choice
-from .pathtrace import bsdf_step, by_component, first_nondelta_hit, path_start
+from .pathtrace import (bsdf_step, by_component, first_nondelta_hit, next_hit,
+                        path_start)
 
 DEBUG_MODES = ("none", "radiosity", "patches", "virtual")
 
@@ -190,19 +191,14 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
 
         # n_nondelta: non-delta vertices before the current hit
         ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
-            prev_lights, active = path_start(ray, active, lights)
-        n_implicit = mi.UInt32(0)
-        n_explicit = mi.UInt32(0)
+            prev_lights, active, n_implicit, n_explicit = path_start(ray, active, lights)
 
         while dr.hint(active, label="radiosity_gather"):
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
-            gather_ray = active & ~prev_bsdf_delta
-            n_implicit += dr.select(gather_ray, 1, 0)
+            si, gather_ray, n_implicit = next_hit(scene, ray, depth, prev_bsdf_delta, active,
+                                                  n_implicit)
 
-            # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            Le = lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
-                                     prev_bsdf_delta, active)
-            L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
+            L += self.emission_met(scene, lights, si, beta, n_nondelta,
+                                   (prev_si, prev_bsdf_pdf, prev_bsdf_delta, prev_lights), active)
 
             # Far gather ray: reflected radiosity of the patch it hits ends the path (§2.5).
             L_far, far = self.far_reflected(ray, si, gather_ray, r_thresh)

@@ -11,11 +11,12 @@ import drjit as dr
 import mitsuba as mi
 
 from .. import units
-from ..prepass.rex_textures import (KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, build_rexes,
-                                     photon_budget)
+from ..prepass.rex_textures import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, photon_budget
+from ..prepass.rex_textures import build as build_rexes
 from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
-from .pathtrace import by_component, path_start, russian_roulette, trace_until
+from .pathtrace import (by_component, next_hit, path_start, russian_roulette,
+                        trace_until)
 
 DEBUG_MODES = ("none", "leaves", "edges", "buckets")
 DIRECT_MODES = ("rex", "shadow")
@@ -272,8 +273,9 @@ class RexIntegrator(TwoPassIntegrator):
                            light_split_dist=self.light_split_dist)
 
     def prepass(self, scene, seed):
-        """Size pass, light pass and rex build (§3.4), by :func:`..prepass.rex_textures.build_rexes`."""
-        return build_rexes(scene, self.rex_settings(scene), seed, self.prepass_sensor)
+        """Size pass, light pass and rex build (§3.4):
+        :func:`mi_twopass.prepass.rex_textures.build`."""
+        return build_rexes(scene, self.rex_settings(scene), seed, sensor=self.prepass_sensor)
 
     def prepass_stats(self, pre):
         stats = dict(pre.stats)
@@ -309,19 +311,17 @@ class RexIntegrator(TwoPassIntegrator):
 
         # n_nondelta: non-delta vertices before the current hit
         ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
-            prev_lights, active = path_start(ray, active, lights)
+            prev_lights, active, n_implicit, n_explicit = path_start(ray, active, lights)
         after_rex = mi.Bool(False)  # the MIS ray of a rex vertex: only emitters count
-        n_implicit = mi.UInt32(0)
-        n_explicit = mi.UInt32(0)
+        n_traced = mi.UInt32(0)  # camera and continuation rays (eye_rays with the shadow rays)
 
         while dr.hint(active, label="rex_eye"):
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
-            n_implicit += dr.select(active & (depth > 0), mi.UInt32(1), mi.UInt32(0))
+            si, gather_ray, n_implicit = next_hit(scene, ray, depth, prev_bsdf_delta, active,
+                                                  n_implicit)
+            n_traced += dr.select(active, 1, 0)
 
-            # Emission, MIS-weighted against the emitter sampling of the previous vertex.
-            Le = lights.emission_mis(scene, prev_lights, si, prev_si, prev_bsdf_pdf,
-                                     prev_bsdf_delta, active)
-            L += by_component(beta * Le, n_nondelta <= 1, want_direct, want_indirect)
+            L += self.emission_met(scene, lights, si, beta, n_nondelta,
+                                   (prev_si, prev_bsdf_pdf, prev_bsdf_delta, prev_lights), active)
 
             valid = active & si.is_valid() & ~after_rex
             shape = tables.shape_index(si, valid)
@@ -376,7 +376,7 @@ class RexIntegrator(TwoPassIntegrator):
             active = go & survive & (dr.max(beta) != 0.0) & (bs.pdf > 0)
 
         self.count_after((L,), implicit_rays=n_implicit, explicit_rays=n_explicit,
-                         eye_rays=n_implicit + n_explicit + 1)
+                         eye_rays=n_traced + n_explicit)
         return L, mi.Bool(True), []
 
     def sample_debug(self, scene, sampler, ray, active):

@@ -9,13 +9,12 @@ import mitsuba as mi
 from ..prepass.radiosity import virtual_point_reached
 from ..prepass.spike_grid import INVALID, SpikeSettings
 from ..prepass.spike_grid import build as build_spike
-from ..progress import progress as progress_bar
 from ..rays import spawn_ray_to
 from ..scene.bounds import ray_scale
 from .base import (FarGatherIntegrator, needs_memory, read_bool, read_choice, read_float,
                    read_int)
 from .light_samplers import SpikeListSampler, receiver
-from .pathtrace import (bsdf_step, by_component, first_nondelta_hit, mis_weight,
+from .pathtrace import (bsdf_step, by_component, first_nondelta_hit, mis_weight, next_hit,
                         path_start)
 
 DEBUG_MODES = ("none", "list_length", "radiosity")
@@ -295,9 +294,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
     def prepass(self, scene, seed):
         """GSII steps 1–2 (patches, radiosity), then §3.3 step 3: sources and spike lists
         (:func:`mi_twopass.prepass.spike_grid.build`)."""
-        with progress_bar(total=self.visibility_max_rays // 10, desc="spike lists",
-                          unit="round") as bar:
-            return build_spike(scene, self.spike_settings(scene), self.radiosity, seed, bar)
+        return build_spike(scene, self.spike_settings(scene), self.radiosity, seed)
 
     def prepass_stats(self, pre):
         st = dict(pre.stats)
@@ -340,15 +337,12 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
 
         # n_nondelta: non-delta vertices before the current hit
         ray, L, beta, eta, depth, n_nondelta, prev_si, prev_bsdf_pdf, prev_bsdf_delta, \
-            prev_lights, active = path_start(ray, active, lights)
-        n_implicit = mi.UInt32(0)
-        n_explicit = mi.UInt32(0)
+            prev_lights, active, n_implicit, n_explicit = path_start(ray, active, lights)
         n_fallback = mi.UInt32(0)  # explicit gathers at vertices whose cells have no list
 
         while dr.hint(active, label="spike_gather"):
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=depth == 0)
-            gather_ray = active & ~prev_bsdf_delta
-            n_implicit += dr.select(gather_ray, 1, 0)
+            si, gather_ray, n_implicit = next_hit(scene, ray, depth, prev_bsdf_delta, active,
+                                                  n_implicit)
             from_list = gather_ray & prev_lights.has_list
 
             # -- Emission met by this ray: MIS against the previous vertex's choice, or the

@@ -1,20 +1,17 @@
 """``twopass``: per scene and camera, the composition of the suite's techniques that pays.
 
 The cost model and the table of compositions are in :mod:`mi_twopass.compose.cost`, the pilot
-in :mod:`mi_twopass.compose.pilot`; this module wires them to Mitsuba's render call.
+in :mod:`mi_twopass.compose.pilot`, the choice that runs them in
+:mod:`mi_twopass.compose.choose`; this module wires them to Mitsuba's render call.
 """
 from __future__ import annotations
 
-import time
-
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from ..compose import cost
-from ..compose.pilot import (PilotSettings, choose_pixels, pilot, pixel_means,
-                              relative_variance, samples_array)
-from ..scene.lambertian import is_lambertian
+from ..compose.choose import choose
+from ..compose.pilot import PilotSettings
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .component_path import ComponentPathIntegrator
 from .pathtrace import first_nondelta_hit
@@ -32,17 +29,6 @@ TECHNIQUE_COLOURS = {
     "cache": (0.0, 0.75, 0.2),       # the radiance cache reads the surface
     "rex": (0.85, 0.0, 0.75),        # the surface carries rexes
 }
-
-
-class Choice:
-    """What a ``twopass`` prepass leaves for the render: the decision and the chosen
-    integrator (its structure built). A plain class: Dr.Jit would traverse a dataclass."""
-
-    def __init__(self, decision, integrator, seconds):
-        self.decision = decision
-        self.integrator = integrator
-        #: {"pilot": s, "prepasses": s}: where the twopass prepass spent its time
-        self.seconds = seconds
 
 
 class TwoPassChooser(TwoPassIntegrator):
@@ -158,144 +144,11 @@ class TwoPassChooser(TwoPassIntegrator):
                     {"type": c.plugin, **self._common_props(), **dict(c.props), **extra})
         return self._candidates[key]
 
-    @staticmethod
-    def traits(scene, max_depth) -> cost.SceneTraits:
-        lambertian = any(s.bsdf() is not None and is_lambertian(s.bsdf())
-                         for s in scene.shapes())
-        return cost.SceneTraits(emitters=len(scene.emitters()), lambertian=lambertian,
-                                max_depth=max_depth)
-
     # -- prepass: pilot, then the structures that pay ---------------------------------------
     def prepass(self, scene, seed):
-        sensor = self.prepass_sensor
-        spp = max(int(self._render_spp or sensor.sampler().sample_count()), 1)
-        t_start = time.perf_counter()
-        build_seconds = 0.0
-        if len(self.allowed) == 1:  # everything forced: nothing to measure
-            c = self.allowed[0]
-            integ = self.candidate(c)
-            if c.needs_prepass:
-                _, build_seconds = integ.ensure_prepass(scene, seed, sensor)
-            decision = cost.Decision(chosen=c, spp=spp)
-            decision.skipped = {"pilot": "every choice forced from XML"}
-            return Choice(decision, integ, {"pilot": 0.0, "prepasses": build_seconds})
-
-        pixels = choose_pixels(sensor, self.pilot_settings.pixels, seed)
-        film_pixels = pixels.film_pixels
-        path_row = cost.COMPOSITIONS[0]
-        path_integ = self.candidate(path_row)
-        if path_row in self.allowed:
-            # no pilot where no prepass can fit the budget whatever path's cost per sample;
-            # rexes, which can be cut to 2^16 photons, count only where nothing else could be
-            # built (alone they would start a pilot at 32 spp of a 128² film, where its 147,456
-            # samples cost more than any rexes that small could save: the office's and
-            # window_interior's twopass fell to 0.93x and 0.84x path at 128²)
-            prepassed = [c for c in self.allowed if c.needs_prepass]
-            others = [c for c in prepassed if c.plugin != "rex"]
-            too_big = cost.none_fit(
-                {c.name: cost.least_light_paths(self.candidate(c)) for c in others or prepassed},
-                spp * film_pixels, self.pilot_budget)
-            if too_big is not None and others:
-                for c in prepassed:
-                    too_big.setdefault(c.name, "no pilot: rexes cut to the budget do not start "
-                                               "a pilot where no other prepass fits")
-            if too_big is not None:
-                decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big)
-                return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
-                                                      "prepasses": 0.0})
-        parts_out = []
-
-        def path_estimator(scene_, sampler, ray, active):
-            d, c_, i, _ = path_integ.sample_components(scene_, sampler, ray, active)
-            parts_out.append((d, c_, i))
-            return d + c_ + i
-
-        path_run = pilot(scene, sensor, pixels, self.pilot_settings, path_estimator, seed)
-        parts = [np.concatenate([samples_array(p[k], pixels, n) for p, n in
-                                 zip(parts_out, (self.pilot_settings.samples,
-                                                 4 * self.pilot_settings.samples,
-                                                 4 * self.pilot_settings.samples))], axis=1)
-                 for k in range(3)]
-        ref = pixel_means(path_run.values)
-        variance = cost.VarianceParts(
-            total=relative_variance(path_run.values, ref),
-            direct=relative_variance(parts[0], ref), caustic=relative_variance(parts[1], ref),
-            indirect=relative_variance(parts[2], ref))
-        path_m = cost.Measured(prepass_seconds=0.0,
-                               seconds_per_spp=path_run.seconds_per_spp(film_pixels),
-                               variance=variance.total, bias2=0.0, mean_ratio=1.0)
-        runs = {}
-        measured = {}
-        decision = cost.Decision(chosen=path_row, spp=spp)
-        if path_row in self.allowed:
-            measured[path_row.name] = path_m
-            runs[path_row.name] = (path_row, path_integ, path_run)
-
-        traits = self.traits(scene, self.max_depth)
-        others = [c for c in self.allowed if c.needs_prepass]
-        for c in others:
-            decision.best_case[c.name] = cost.best_case_score(variance, path_m, c, spp)
-        best = min((m.score(spp) for m in measured.values()), default=float("inf"))
-        budget = self.pilot_budget * spp * path_m.seconds_per_spp
-        for c in sorted(others, key=lambda c: decision.best_case[c.name]):
-            why = cost.structural_reason(c, traits)
-            if why is None and c.caustics == "rex" and \
-                    variance.caustic < cost.CAUSTIC_SHARE * variance.total:
-                why = (f"caustics carry {variance.caustic / max(variance.total, 1e-30):.1%} "
-                       f"of path's variance (< {cost.CAUSTIC_SHARE:.0%})")
-            if why is None and decision.best_case[c.name] * cost.MIN_GAIN >= best:
-                why = (f"best case {decision.best_case[c.name]:.3g} (relMSE x s) cannot beat "
-                       f"{best:.3g} by {cost.MIN_GAIN}x")
-            spent = time.perf_counter() - t_start
-            integ = self.candidate(c)
-            least, need = cost.light_paths(integ, scene, sensor)
-            floor = cost.prepass_floor(need, path_m, film_pixels)
-            if why is None and spent + floor > budget and measured and least < need:
-                # rexes coarser than the image asks for: the photons the budget pays for
-                fits = cost.light_paths_within(budget - spent, path_m, film_pixels)
-                if fits >= least:
-                    integ = self.candidate(c, photons=fits)
-                    decision.fitted[c.name] = (fits, need)
-                    floor = cost.prepass_floor(fits, path_m, film_pixels)
-            if why is None and spent + floor > budget and measured:
-                path_s = spp * path_m.seconds_per_spp
-                why = (f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
-                       f"> {budget:.3g} s ({self.pilot_budget:g} x path's predicted "
-                       f"{path_s:.3g} s)")
-            if why is not None:
-                decision.skipped[c.name] = why
-                continue
-            try:
-                _, seconds = integ.ensure_prepass(scene, seed, sensor)
-            except (ValueError, NotImplementedError) as err:  # refused: media, ...
-                decision.skipped[c.name] = f"refused: {err}"
-                continue
-            build_seconds += seconds
-            run = pilot(scene, sensor, pixels, self.pilot_settings,
-                        lambda s_, smp, r, a, integ=integ: integ.sample(s_, smp, r, None, a)[0],
-                        seed)
-            b2, ratio = cost.bias_squared(run.values, path_run.values)
-            measured[c.name] = cost.Measured(
-                prepass_seconds=seconds,
-                seconds_per_spp=run.seconds_per_spp(film_pixels),
-                variance=relative_variance(run.values, ref), bias2=b2, mean_ratio=ratio)
-            runs[c.name] = (c, integ, run)
-            best = min(best, measured[c.name].score(spp))
-
-        if not measured:  # nothing allowed could be built: say why
-            raise ValueError("twopass: no composition allowed by the forced choices can be "
-                             "built here: " + "; ".join(f"{k}: {v}" for k, v in
-                                                       decision.skipped.items()))
-        # the variances again against every pilot's pixel means (less noise in R)
-        pooled = np.mean([pixel_means(r[2].values) for r in runs.values()], axis=0)
-        for name, (_, _, run) in runs.items():
-            measured[name].variance = relative_variance(run.values, pooled)
-        decision.measured = measured
-        name = min(measured, key=lambda n: measured[n].score(spp))
-        decision.chosen = runs[name][0]
-        pilot_seconds = time.perf_counter() - t_start - build_seconds
-        return Choice(decision, runs[name][1], {"pilot": pilot_seconds,
-                                                 "prepasses": build_seconds})
+        """The pilot and the structures that may pay: :func:`mi_twopass.compose.choose.choose`."""
+        return choose(scene, self.prepass_sensor, seed, self._render_spp, self.allowed,
+                      self.candidate, self.pilot_settings, self.pilot_budget, self.max_depth)
 
     def prepass_stats(self, choice):
         d = choice.decision

@@ -642,7 +642,7 @@ class RadiosityPrepass:
                 if sol.elements is not None else 0}
 
 
-def build(scene, settings: RadiositySettings, seed: int, progress=None) -> RadiosityPrepass:
+def build(scene, settings: RadiositySettings, seed: int, progress: bool = True) -> RadiosityPrepass:
     """The radiosity prepass shared by radiosity_gather, spike_gather and radiance_cache (GSII
     steps 1–2, Zimmerman & Shirley §2.5 / §3.3 step 2): patches of at most ``max_patches``,
     receiving elements, max(``min_particles``, ``particles_per_patch`` × patches) particles
@@ -658,7 +658,7 @@ def build(scene, settings: RadiositySettings, seed: int, progress=None) -> Radio
     n_particles = max(settings.min_particles, settings.particles_per_patch * patches.count)
     solution = solve_radiosity(target, patches, n_particles=n_particles, seed=seed,
                                elements=elements,
-                               progress=True if progress is None else bool(progress))
+                               progress=bool(progress))
     virtual = VirtualLuminaires(solution, settings.vl_threshold)
     return RadiosityPrepass(scene=target, solution=solution, virtual=virtual,
                             seconds=time.perf_counter() - t0, simplified=simplified)

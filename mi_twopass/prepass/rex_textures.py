@@ -5,7 +5,7 @@ Heckbert, "Adaptive Radiosity Textures for Bidirectional Ray Tracing", SIGGRAPH 
 parameter square of one diffuse surface region; its leaves are *buckets* that count photons and
 add up their power (flux); the *light quadtree* stratifies the emission of every light.
 
-The build (:func:`build_rexes`) runs three steps, each a Dr.Jit wavefront:
+The build (:func:`build`) runs three steps, each a Dr.Jit wavefront:
 
 1. **Size pass** (§3.4.1, :func:`size_pass`): rays from the eye, through delta and glossy
    bounces, record at their first diffuse hit the size of a pixel's preimage in that surface's
@@ -70,6 +70,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import drjit as dr
@@ -1069,7 +1070,7 @@ def photon_need(scene, tables, seen_rex, need, settings, seed, power, adapt_dim,
 
 
 def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
-    """The photons :func:`build_rexes` shoots with ``settings``: ``settings.photons``, or where
+    """The photons :func:`build` shoots with ``settings``: ``settings.photons``, or where
     that is ≤ 0 the image's need (:func:`photon_need`; this runs the size pass and the probe
     shoot, a small part of the prepass)."""
     if settings.photons > 0:
@@ -1081,7 +1082,8 @@ def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
                        settings.direct == "rex")[0]
 
 
-def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None):
+def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None,
+               show_progress=True):
     """Adapt the light quadtrees, then shoot the final photons; returns records and stats.
 
     ``settings.photons`` ≤ 0: the budget the image needs (:func:`photon_need`, from the size
@@ -1110,9 +1112,11 @@ def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     # final shoot: every leaf afresh, one jittered photon per quadrant, `reps` times so that
     # each emitter uses its budget
     shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2))
-    with progress(total=shoot.lanes, desc="rex light pass", unit="photon") as bar:
+    bar = progress(total=shoot.lanes, desc="rex light pass", unit="photon") if show_progress \
+        else nullcontext()
+    with bar:
         records, rays, hits = shoot_photons(scene, tables, shoot, settings, seed, _SALT_PHOTON,
-                                            keep_direct, bar)
+                                            keep_direct, bar if show_progress else None)
     stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=shoot.lanes,
                  light_hit_percent=100.0 * hits / max(shoot.lanes, 1),
                  light_tree_leaves=int(np.count_nonzero(tree.leaf)),
@@ -1580,8 +1584,11 @@ def check_no_media(scene):
                          f"{names}{more}. Use Mitsuba's 'volpath' integrator for it.")
 
 
-def build_rexes(scene, settings: RexSettings, seed: int = 0, sensor=None) -> RexPrepass:
-    """Size pass, light pass and rex build for ``scene`` (all random numbers from ``seed``)."""
+def build(scene, settings: RexSettings, seed: int = 0, progress: bool = True,
+          sensor=None) -> RexPrepass:
+    """Size pass, light pass and rex build for ``scene`` (all random numbers from ``seed``);
+    ``progress``: a bar over the light pass's photons (on a terminal); ``sensor``: the camera
+    the size pass sizes the rexes for (default: the scene's first)."""
     if settings.direct not in ("rex", "shadow"):
         raise ValueError(f"direct={settings.direct!r}: expected 'rex' or 'shadow'")
     check_no_media(scene)
@@ -1592,7 +1599,7 @@ def build_rexes(scene, settings: RexSettings, seed: int = 0, sensor=None) -> Rex
     dr.sync_thread()
     t1 = time.perf_counter()
     records, light_stats = light_pass(scene, tables, seen, settings, seed, tables.bounds,
-                                      settings.direct == "rex", need)
+                                      settings.direct == "rex", need, progress)
     t2 = time.perf_counter()
     rexes = build_rex_tree(tables, records, cap, settings, scene, seed)
     dr.sync_thread()

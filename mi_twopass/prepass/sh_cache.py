@@ -662,27 +662,31 @@ def cache_alpha(scene, settings: CacheSettings, points=None) -> float:
                          scene_diagonal(scene))
 
 
-def build(scene, settings: CacheSettings, seed: int, sensor=None) -> CachePrepass:
+def build(scene, settings: CacheSettings, seed: int, progress: bool = True,
+          sensor=None) -> CachePrepass:
     """Shading points, coarse solution (radiosity), SH far field (§4.1), near-field BVH
     (§7). Only Lambertian surfaces carry radiosity into the cache: the shading points are the
     camera's first Lambertian hits, and the SH gather rays and the near-field triangles read 0
     on every other surface (the render traces paths there). ``sensor``: the camera whose
-    shading points the cache is built for (default: the scene's first).
+    shading points the cache is built for (default: the scene's first); ``progress``: bars on
+    the radiosity solve and the spike lists' visibility rounds (on a terminal).
 
     With ``settings.spike``, spike lists of the emitters for the direct light (Zimmerman &
     Shirley §4, :func:`~mi_twopass.prepass.spike_grid.build_spike_prepass` on the coarse
     solution, no virtual luminaires: reflected light is the cache's)."""
-    pre = _build_cache(scene, settings, seed, sensor)
+    pre = _build_cache(scene, settings, seed, sensor, progress)
     if settings.spike is not None and len(scene.emitters()) > 1:
         sp = settings.spike
         pre.spike = build_spike_prepass(scene, sp, solution=pre.solution,
                                         vl_threshold=float("inf"), e_high_rel=sp.e_high_rel,
                                         e_low_rel=sp.e_low_rel, E_high=sp.E_high,
-                                        E_low=sp.E_low, seed=seed, sensor=sensor)
+                                        E_low=sp.E_low, seed=seed, sensor=sensor,
+                                        progress=progress)
     return pre
 
 
-def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None) -> CachePrepass:
+def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
+                 progress: bool = True) -> CachePrepass:
     """:func:`build` without the spike lists."""
     if not settings.ignore_media:
         check_no_media(scene)
@@ -702,7 +706,7 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None) -> Cach
     points = collect_shading_points(scene, sensor, settings.max_points, seed) \
         if sensor is not None else None
     alpha = cache_alpha(scene, settings, None if points is None else points[0])
-    rad = None if settings.fake_gi else build_radiosity(scene, settings.radiosity, seed)
+    rad = None if settings.fake_gi else build_radiosity(scene, settings.radiosity, seed, progress)
     patches = rad.patches if rad is not None else \
         build_patches(scene, max_patches=settings.radiosity.max_patches, seed=seed)
     # a near triangle sends R_t only from a cached patch (as cached_surface at render time)

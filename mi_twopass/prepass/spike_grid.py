@@ -102,6 +102,7 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 
 import drjit as dr
@@ -109,6 +110,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..host_arrays import columns
+from ..progress import progress as progress_bar
 from ..seeds import numpy_rng, splitmix64
 from ..tables import Tables
 from .radiosity import RadiositySettings
@@ -1163,8 +1165,9 @@ class SpikePrepass:
 
 
 def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, sensor=None,
-                     solution=None, progress=None) -> SpikeGrid:
-    """Lists of the camera-seen cells: camera pass, candidates, visibility, CSR (§4)."""
+                     solution=None, bar=None) -> SpikeGrid:
+    """Lists of the camera-seen cells: camera pass, candidates, visibility, CSR (§4). ``bar``
+    (a tqdm-like bar, optional) is advanced once per visibility round."""
     settings.validate()
     t0 = time.perf_counter()
     bbox_min, h, dims = grid_geometry(scene, settings.grid_res)
@@ -1234,8 +1237,8 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
             counter["first"] += sel.size * VIS_ROUND
             counter["rays"] += rays
             hits[a:a + chunk] = reached.reshape(-1, VIS_ROUND).sum(axis=1)
-        if progress is not None:
-            progress.update(1)
+        if bar is not None:
+            bar.update(1)
         return hits
 
     g, rays_per_pair = estimate_visibility(trace, pair_list.size, settings.visibility_max_rays,
@@ -1287,16 +1290,20 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
 
 def build_spike_prepass(scene, settings: SpikeSettings, solution=None, vl_threshold=0.5,
                         e_high_rel=4.0, e_low_rel=0.1, E_high=None, E_low=None, seed=0,
-                        sensor=None, progress=None) -> SpikePrepass:
+                        sensor=None, progress: bool = True) -> SpikePrepass:
     """Sources and grid of ``scene`` on top of a radiosity ``solution`` (may be ``None``).
 
-    ``progress`` (a tqdm-like bar, optional) is advanced once per visibility round."""
+    ``progress``: a bar over the visibility rounds (shown on a terminal,
+    :func:`mi_twopass.progress.progress`)."""
     t0 = time.perf_counter()
     sources = build_sources(scene, solution, vl_threshold=vl_threshold, e_high_rel=e_high_rel,
                             e_low_rel=e_low_rel, E_high=E_high, E_low=E_low, seed=seed)
     t_sources = time.perf_counter() - t0
-    grid = build_spike_grid(scene, sources, settings, seed=seed, sensor=sensor,
-                            solution=solution, progress=progress)
+    bar = progress_bar(total=settings.visibility_max_rays // VIS_ROUND, desc="spike lists",
+                       unit="round") if progress else nullcontext()
+    with bar:
+        grid = build_spike_grid(scene, sources, settings, seed=seed, sensor=sensor,
+                                solution=solution, bar=bar if progress else None)
     stats = dict(grid.stats)
     stats.update(sources=sources.count, virtual_luminaires=int((sources.kind == KIND_PATCH).sum()),
                  delta_sources=int(sources.delta_ids.size), E_high=float(sources.E_high),
@@ -1314,13 +1321,13 @@ __all__ = ["INVALID", "Sources", "SpikeGrid", "SpikeSettings", "SpikePrepass", "
 
 
 def build(scene, settings: SpikeSettings, radiosity: RadiositySettings, seed: int,
-          progress=None) -> SpikePrepass:
+          progress: bool = True) -> SpikePrepass:
     """The whole spike_gather prepass (Zimmerman & Shirley §3.3 steps 1–3): the shared
     radiosity prepass (:func:`mi_twopass.prepass.radiosity.build`; its own virtual luminaires
     off: the spike sources reclassify patches by ``settings.vl_threshold``), then the sources
-    and the spike lists. ``progress``: a tqdm-like bar advanced once per visibility round."""
+    and the spike lists. ``progress``: bars on the solve and the visibility rounds."""
     t0 = time.perf_counter()
-    rad = build_radiosity(scene, replace(radiosity, vl_threshold=math.inf), seed)
+    rad = build_radiosity(scene, replace(radiosity, vl_threshold=math.inf), seed, progress)
     pre = build_spike_prepass(scene, settings, solution=rad.solution,
                               vl_threshold=settings.vl_threshold,
                               e_high_rel=settings.e_high_rel, e_low_rel=settings.e_low_rel,

@@ -12,7 +12,8 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.evaluation.statistics import block_z_scores
-from mi_twopass.prepass.rex_textures import AREA_SPHERE, RexSettings, RexTables, build_rexes
+from mi_twopass.prepass.rex_textures import AREA_SPHERE, RexSettings, RexTables
+from mi_twopass.prepass.rex_textures import build as build_rexes
 from mi_twopass.scene.lambertian import is_lambertian
 
 T = mi.ScalarTransform4f

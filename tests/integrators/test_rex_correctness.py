@@ -42,7 +42,8 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.evaluation.statistics import block_means
-from mi_twopass.prepass.rex_textures import RexSettings, build_rexes
+from mi_twopass.prepass.rex_textures import RexSettings
+from mi_twopass.prepass.rex_textures import build as build_rexes
 from mi_twopass.scene.bounds import scene_bounds
 from mi_twopass.scene.lambertian import is_lambertian
 

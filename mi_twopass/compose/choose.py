@@ -1,0 +1,186 @@
+"""``twopass``'s choice: the pilot, the structures that may pay, and the composition that wins.
+
+The cost model and the table of compositions are in :mod:`mi_twopass.compose.cost`, the pilot
+estimates in :mod:`mi_twopass.compose.pilot`; :func:`choose` runs them on one scene and camera
+and is the whole of ``twopass``'s prepass (:mod:`mi_twopass.integrators.twopass`).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..scene.lambertian import is_lambertian
+from . import cost
+from .pilot import PilotSettings, choose_pixels, pilot, pixel_means, relative_variance, samples_array
+
+
+class Choice:
+    """What a ``twopass`` prepass leaves for the render: the decision and the chosen
+    integrator (its structure built). A plain class: Dr.Jit would traverse a dataclass."""
+
+    def __init__(self, decision, integrator, seconds):
+        self.decision = decision
+        self.integrator = integrator
+        #: {"pilot": s, "prepasses": s}: where the twopass prepass spent its time
+        self.seconds = seconds
+
+
+def traits(scene, max_depth) -> cost.SceneTraits:
+    """What :func:`cost.structural_reason` reads of ``scene``: emitter count, whether any
+    surface is Lambertian, the depth bound."""
+    lambertian = any(s.bsdf() is not None and is_lambertian(s.bsdf())
+                     for s in scene.shapes())
+    return cost.SceneTraits(emitters=len(scene.emitters()), lambertian=lambertian,
+                            max_depth=max_depth)
+
+
+def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
+           settings: PilotSettings, budget_factor: float, max_depth: int) -> Choice:
+    """``twopass``'s prepass: the pilot, then the structures that may pay, and the composition
+    with the lowest predicted relMSE × seconds (:mod:`mi_twopass.compose.cost`).
+
+    ``allowed``: the rows of :data:`cost.COMPOSITIONS` the XML leaves open; ``candidate(c,
+    photons=0)``: the integrator of row ``c`` (kept by the caller so that prepasses are reused;
+    ``photons`` > 0: rexes cut to that many photons); ``render_spp``: the samples per pixel the
+    image will get (0: the sensor's); ``budget_factor``: the pilot and prepasses may cost that
+    many times path's predicted render time. Order of work:
+
+    1. nothing to measure when one row is allowed: build it;
+    2. no pilot where no prepass can fit the budget (:func:`cost.none_fit`);
+    3. the pilot path trace, split into direct, caustic and indirect variance;
+    4. per row, cheapest best case first: skipped for a structural reason, a best case that
+       cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
+       the photons the budget pays for first); else built and piloted on the same pixels;
+    5. variances again against the pooled pixel means; the lowest score wins."""
+    spp = max(int(render_spp or sensor.sampler().sample_count()), 1)
+    t_start = time.perf_counter()
+    build_seconds = 0.0
+    if len(allowed) == 1:  # everything forced: nothing to measure
+        c = allowed[0]
+        integ = candidate(c)
+        if c.needs_prepass:
+            _, build_seconds = integ.ensure_prepass(scene, seed, sensor)
+        decision = cost.Decision(chosen=c, spp=spp)
+        decision.skipped = {"pilot": "every choice forced from XML"}
+        return Choice(decision, integ, {"pilot": 0.0, "prepasses": build_seconds})
+
+    pixels = choose_pixels(sensor, settings.pixels, seed)
+    film_pixels = pixels.film_pixels
+    path_row = cost.COMPOSITIONS[0]
+    path_integ = candidate(path_row)
+    if path_row in allowed:
+        # no pilot where no prepass can fit the budget whatever path's cost per sample;
+        # rexes, which can be cut to 2^16 photons, count only where nothing else could be
+        # built (alone they would start a pilot at 32 spp of a 128² film, where its 147,456
+        # samples cost more than any rexes that small could save: the office's and
+        # window_interior's twopass fell to 0.93x and 0.84x path at 128²)
+        prepassed = [c for c in allowed if c.needs_prepass]
+        others = [c for c in prepassed if c.plugin != "rex"]
+        too_big = cost.none_fit(
+            {c.name: cost.least_light_paths(candidate(c)) for c in others or prepassed},
+            spp * film_pixels, budget_factor)
+        if too_big is not None and others:
+            for c in prepassed:
+                too_big.setdefault(c.name, "no pilot: rexes cut to the budget do not start "
+                                           "a pilot where no other prepass fits")
+        if too_big is not None:
+            decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big)
+            return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
+                                                  "prepasses": 0.0})
+    parts_out = []
+
+    def path_estimator(scene_, sampler, ray, active):
+        d, c_, i, _ = path_integ.sample_components(scene_, sampler, ray, active)
+        parts_out.append((d, c_, i))
+        return d + c_ + i
+
+    path_run = pilot(scene, sensor, pixels, settings, path_estimator, seed)
+    parts = [np.concatenate([samples_array(p[k], pixels, n) for p, n in
+                             zip(parts_out, (settings.samples,
+                                             4 * settings.samples,
+                                             4 * settings.samples))], axis=1)
+             for k in range(3)]
+    ref = pixel_means(path_run.values)
+    variance = cost.VarianceParts(
+        total=relative_variance(path_run.values, ref),
+        direct=relative_variance(parts[0], ref), caustic=relative_variance(parts[1], ref),
+        indirect=relative_variance(parts[2], ref))
+    path_m = cost.Measured(prepass_seconds=0.0,
+                           seconds_per_spp=path_run.seconds_per_spp(film_pixels),
+                           variance=variance.total, bias2=0.0, mean_ratio=1.0)
+    runs = {}
+    measured = {}
+    decision = cost.Decision(chosen=path_row, spp=spp)
+    if path_row in allowed:
+        measured[path_row.name] = path_m
+        runs[path_row.name] = (path_row, path_integ, path_run)
+
+    scene_traits = traits(scene, max_depth)
+    others = [c for c in allowed if c.needs_prepass]
+    for c in others:
+        decision.best_case[c.name] = cost.best_case_score(variance, path_m, c, spp)
+    best = min((m.score(spp) for m in measured.values()), default=float("inf"))
+    budget = budget_factor * spp * path_m.seconds_per_spp
+    for c in sorted(others, key=lambda c: decision.best_case[c.name]):
+        why = cost.structural_reason(c, scene_traits)
+        if why is None and c.caustics == "rex" and \
+                variance.caustic < cost.CAUSTIC_SHARE * variance.total:
+            why = (f"caustics carry {variance.caustic / max(variance.total, 1e-30):.1%} "
+                   f"of path's variance (< {cost.CAUSTIC_SHARE:.0%})")
+        if why is None and decision.best_case[c.name] * cost.MIN_GAIN >= best:
+            why = (f"best case {decision.best_case[c.name]:.3g} (relMSE x s) cannot beat "
+                   f"{best:.3g} by {cost.MIN_GAIN}x")
+        spent = time.perf_counter() - t_start
+        integ = candidate(c)
+        least, need = cost.light_paths(integ, scene, sensor)
+        floor = cost.prepass_floor(need, path_m, film_pixels)
+        if why is None and spent + floor > budget and measured and least < need:
+            # rexes coarser than the image asks for: the photons the budget pays for
+            fits = cost.light_paths_within(budget - spent, path_m, film_pixels)
+            if fits >= least:
+                integ = candidate(c, photons=fits)
+                decision.fitted[c.name] = (fits, need)
+                floor = cost.prepass_floor(fits, path_m, film_pixels)
+        if why is None and spent + floor > budget and measured:
+            path_s = spp * path_m.seconds_per_spp
+            why = (f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
+                   f"> {budget:.3g} s ({budget_factor:g} x path's predicted "
+                   f"{path_s:.3g} s)")
+        if why is not None:
+            decision.skipped[c.name] = why
+            continue
+        try:
+            _, seconds = integ.ensure_prepass(scene, seed, sensor)
+        except (ValueError, NotImplementedError) as err:  # refused: media, ...
+            decision.skipped[c.name] = f"refused: {err}"
+            continue
+        build_seconds += seconds
+        run = pilot(scene, sensor, pixels, settings,
+                    lambda s_, smp, r, a, integ=integ: integ.sample(s_, smp, r, None, a)[0],
+                    seed)
+        b2, ratio = cost.bias_squared(run.values, path_run.values)
+        measured[c.name] = cost.Measured(
+            prepass_seconds=seconds,
+            seconds_per_spp=run.seconds_per_spp(film_pixels),
+            variance=relative_variance(run.values, ref), bias2=b2, mean_ratio=ratio)
+        runs[c.name] = (c, integ, run)
+        best = min(best, measured[c.name].score(spp))
+
+    if not measured:  # nothing allowed could be built: say why
+        raise ValueError("twopass: no composition allowed by the forced choices can be "
+                         "built here: " + "; ".join(f"{k}: {v}" for k, v in
+                                                   decision.skipped.items()))
+    # the variances again against every pilot's pixel means (less noise in R)
+    pooled = np.mean([pixel_means(r[2].values) for r in runs.values()], axis=0)
+    for name, (_, _, run) in runs.items():
+        measured[name].variance = relative_variance(run.values, pooled)
+    decision.measured = measured
+    name = min(measured, key=lambda n: measured[n].score(spp))
+    decision.chosen = runs[name][0]
+    pilot_seconds = time.perf_counter() - t_start - build_seconds
+    return Choice(decision, runs[name][1], {"pilot": pilot_seconds,
+                                             "prepasses": build_seconds})
+
+
+__all__ = ["Choice", "choose", "traits"]

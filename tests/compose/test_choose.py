@@ -1,0 +1,72 @@
+"""mi_twopass.compose.choose: a prepass that refuses the scene leaves its rows out with the reason
+(and the others compete); nothing allowed that can be built is a clear error; one allowed row is
+built without a pilot."""
+import os
+import sys
+
+import mitsuba as mi
+import pytest
+
+import mi_twopass  # noqa: F401
+from mi_twopass.compose import cost
+from mi_twopass.compose.choose import choose
+from mi_twopass.compose.pilot import PilotSettings
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import hard_scenes as hs  # noqa: E402
+
+#: samples per pixel so many, with a budget so large, that no row is left out for its cost
+SPP, BUDGET = 1 << 16, 1e6
+
+
+def box_in_fog():
+    """The lit box seen through a homogeneous medium on the camera: the radiance cache refuses
+    it (it transports light between surfaces only), path tracing does not."""
+    d = hs.box()
+    d["sensor"]["medium"] = {"type": "homogeneous", "sigma_t": 0.05,
+                             "albedo": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+    return mi.load_dict(d)
+
+
+def chooser(**forced):
+    return mi.load_dict({"type": "twopass", **forced})
+
+
+def run_choose(scene, tp, allowed):
+    return choose(scene, scene.sensors()[0], 0, SPP, allowed, tp.candidate,
+                  PilotSettings(pixels=64), BUDGET, tp.max_depth)
+
+
+def test_a_refused_prepass_is_skipped_with_its_reason_and_path_still_wins():
+    scene = box_in_fog()
+    tp = chooser()
+    allowed = [c for c in cost.COMPOSITIONS
+               if c.plugin == "path" or c.plugin == "radiance_cache"]
+    choice = run_choose(scene, tp, allowed)
+    # one emitter: the spike-list row is left out for that before it is built
+    plain = next(c.name for c in allowed if c.plugin == "radiance_cache" and c.direct == "emitter")
+    assert choice.decision.skipped[plain].startswith("refused: radiance_cache: the scene has a "
+                                                     "participating medium")
+    assert all(c.name in choice.decision.skipped for c in allowed if c.plugin != "path")
+    assert choice.decision.chosen == cost.COMPOSITIONS[0]
+    assert set(choice.decision.measured) == {cost.COMPOSITIONS[0].name}
+
+
+def test_nothing_buildable_among_the_allowed_rows_is_an_error_naming_why():
+    scene = box_in_fog()
+    tp = chooser(indirect="cache")
+    assert len(tp.allowed) > 1 and all(c.indirect == "cache" for c in tp.allowed)
+    with pytest.raises(ValueError, match=r"twopass: no composition allowed by the forced "
+                                         r"choices can be built here: .*participating medium"):
+        run_choose(scene, tp, tp.allowed)
+
+
+def test_one_allowed_row_is_built_without_a_pilot():
+    scene = mi.load_dict(hs.box())
+    tp = chooser(direct="spike", indirect="radiosity", caustics="off")
+    assert len(tp.allowed) == 1
+    choice = run_choose(scene, tp, tp.allowed)
+    assert choice.decision.chosen == tp.allowed[0]
+    assert choice.decision.skipped == {"pilot": "every choice forced from XML"}
+    assert choice.seconds["pilot"] == 0.0 and choice.seconds["prepasses"] > 0
+    assert choice.integrator.structure is not None
