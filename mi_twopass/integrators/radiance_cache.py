@@ -221,11 +221,12 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.alpha_rel = read_float(props, "alpha_rel", ALPHA_REL, minimum=0.0, strict=True)
         self.alpha_abs = read_float(props, "alpha", 1.0, minimum=0.0, strict=True) \
             if "alpha" in props else None
-        self.lam = read_float(props, "lambda", 1.0)
-        if not 0.0 <= self.lam <= LAMBDA_MAX:
-            raise ValueError(f"lambda={self.lam:.6g}: must be in [0, {LAMBDA_MAX:g}] (0: far field "
-                             "alone, 1: the physical near-field correction, > 1: exaggerated "
-                             "for fake GI, §8.1)")
+        #: λ, the near-field correction's weight (XML ``lambda``: a Python keyword)
+        self.near_weight = read_float(props, "lambda", 1.0)
+        if not 0.0 <= self.near_weight <= LAMBDA_MAX:
+            raise ValueError(f"lambda={self.near_weight:.6g}: must be in [0, {LAMBDA_MAX:g}] "
+                             "(0: far field alone, 1: the physical near-field correction, "
+                             "> 1: exaggerated for fake GI, §8.1)")
         self.fake_gi = read_bool(props, "fake_gi", False)
         self.ignore_media = read_bool(props, "ignore_media", False)
         self.ambient = read_float(props, "ambient", 0.1, minimum=0.0)
@@ -235,16 +236,15 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.max_clusters = read_int(props, "max_clusters", 1024, minimum=1)
         self.rays_per_cluster = read_int(props, "rays_per_cluster", 128, minimum=1)
         self.max_near_triangles = read_int(props, "max_near_triangles", 1 << 17, minimum=1)
-        self.cell_rel = read_float(props, "near_cell_rel", 1.0, minimum=0.0, strict=True)
+        self.near_cell_rel = read_float(props, "near_cell_rel", 1.0, minimum=0.0, strict=True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.near_far = read_choice(props, "near_far", "direction", ("direction", "mean"))
         self.direct = read_choice(props, "direct", "emitter", DIRECT_MODES)
 
     def settings(self):
         return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.radiosity,
-                self.max_points,
-                self.max_clusters, self.rays_per_cluster, self.max_near_triangles, self.cell_rel,
-                self.direct)
+                self.max_points, self.max_clusters, self.rays_per_cluster,
+                self.max_near_triangles, self.near_cell_rel, self.direct)
 
     @property
     def cache_settings(self) -> CacheSettings:
@@ -254,7 +254,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                              max_points=self.max_points, max_clusters=self.max_clusters,
                              rays_per_cluster=self.rays_per_cluster,
                              max_near_triangles=self.max_near_triangles,
-                             near_cell_rel=self.cell_rel, ignore_media=self.ignore_media,
+                             near_cell_rel=self.near_cell_rel, ignore_media=self.ignore_media,
                              path_only=not self.reads_cache and self.debug == "none",
                              debug_view=self.debug != "none",
                              spike=SpikeSettings() if self.direct == "spike" else None)
@@ -309,11 +309,11 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         s = self.structure
         L_F = s.cache.coefficients(si.p, active)
         B_D = s.cache.far_field(si.p, n, active, coeffs=L_F)
-        if self.lam == 0.0:
+        if self.near_weight == 0.0:
             return B_D, mi.Color3f(0.0), mi.UInt32(0)
         B_C, visits = s.near.correction(si.p, n, B_D, s.alpha, active,
                                            L_F=L_F if self.near_far == "direction" else None)
-        return B_D, self.lam * dr.select(active, B_C, 0.0), dr.select(active, visits, 0)
+        return B_D, self.near_weight * dr.select(active, B_C, 0.0), dr.select(active, visits, 0)
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         if self.debug != "none":
