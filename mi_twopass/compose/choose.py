@@ -6,13 +6,15 @@ and is the whole of ``twopass``'s prepass (:mod:`mi_twopass.integrators.twopass`
 """
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
 
 from ..scene.lambertian import is_lambertian
 from . import cost
-from .pilot import PilotSettings, choose_pixels, pilot, pixel_means, relative_variance, samples_array
+from .pilot import (PilotSettings, choose_pixels, pilot, pixel_means, relative_variance,
+                    run_samples, samples_array)
 
 
 class Choice:
@@ -24,6 +26,79 @@ class Choice:
         self.integrator = integrator
         #: {"pilot": s, "prepasses": s}: where the twopass prepass spent its time
         self.seconds = seconds
+
+
+#: seed offset of the candidates' pilots (path's use seed, seed + 1, seed + 2) and of the bias
+#: checks' further samples
+_CANDIDATE_SEEDS = 16
+_CHECK_SEEDS = 64
+
+
+def _estimator(integ):
+    """A candidate integrator's ``sample`` as a pilot estimator (its radiance alone)."""
+    return lambda scene, sampler, ray, active: integ.sample(scene, sampler, ray, None, active)[0]
+
+
+def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, decision,
+               time_left) -> str:
+    """The name of the winner once no bias hidden in its pilot's noise can change the choice,
+    as far as the budget can tell.
+
+    While the best-scoring composition may be biased (:attr:`cost.Composition.biased`) and a
+    bias below its pilot's detection limit could make it lose to the runner-up
+    (:func:`cost.hidden_bias_may_decide`), both it and path are sampled further on the same
+    pixels, to the samples per pixel :func:`cost.check_samples` asks for or as many as fit in
+    ``time_left()`` seconds, and its bias is estimated again from all samples: a bias found is
+    counted and the choice made again. A candidate is accepted on its estimate once
+    :data:`cost.CHECK_ROUNDS` tests are done or the budget does not double its samples: a
+    bias below what the budget can detect is not counted, so the check costs at most the
+    pilot's budget. Each test is recorded in ``decision.bias_checks``."""
+    measured = decision.measured
+    more = {name: [] for name in runs}  # name -> further sample arrays (pixels, n, 3)
+    path_more = []
+    path_estimator = _path_estimator(path_integ)
+    settled = set()
+    n_runs = 0
+    while True:
+        name = min(measured, key=lambda n: measured[n].score(spp))
+        c, integ, run = runs[name]
+        m = measured[name]
+        runner_up = min((measured[n].score(spp) for n in measured if n != name),
+                        default=math.inf)
+        if name in settled or not c.biased or not cost.hidden_bias_may_decide(m, runner_up, spp):
+            return name
+        checks = decision.bias_checks.setdefault(name, [])
+        have = run.values.shape[1] + sum(v.shape[1] for v in more[name])
+        have_path = path_run.values.shape[1] + sum(v.shape[1] for v in path_more)
+        per_sample = len(pixels.index) * (run.seconds_per_lane + path_run.seconds_per_lane)
+        affordable = have + int(max(time_left(), 0.0) / per_sample)
+        total = min(cost.check_samples(have, m, runner_up, spp), affordable)
+        if len(checks) >= cost.CHECK_ROUNDS or total < 2 * have:
+            why = "tests done" if len(checks) >= cost.CHECK_ROUNDS else "no budget for more"
+            checks.append((have, None, m.bias_se,
+                           f"accepted ({why}): a bias below {cost.BIAS_SIGMAS * m.bias_se:.3g} "
+                           "cannot be told from noise"))
+            settled.add(name)
+            continue
+        if total > have_path:
+            path_more.append(run_samples(scene, sensor, pixels, total - have_path,
+                                         path_estimator, seed + _CHECK_SEEDS + n_runs)[0])
+            n_runs += 1
+        more[name].append(run_samples(scene, sensor, pixels, total - have, _estimator(integ),
+                                      seed + _CHECK_SEEDS + n_runs)[0])
+        n_runs += 1
+        bias = cost.bias_squared(np.concatenate([run.values, *more[name]], axis=1),
+                                 np.concatenate([path_run.values, *path_more], axis=1))
+        m.bias2, m.bias_se = bias.b2, bias.se
+        checks.append((total, bias.raw, bias.se, "counted" if bias.b2 > 0 else "below the limit"))
+
+
+def _path_estimator(path_integ):
+    """The path pilot's estimator: the sum of the component path tracer's parts."""
+    def estimate(scene, sampler, ray, active):
+        direct, caustic, indirect, _ = path_integ.sample_components(scene, sampler, ray, active)
+        return direct + caustic + indirect
+    return estimate
 
 
 def traits(scene, max_depth) -> cost.SceneTraits:
@@ -106,7 +181,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         total=relative_variance(path_run.values, ref),
         direct=relative_variance(parts[0], ref), caustic=relative_variance(parts[1], ref),
         indirect=relative_variance(parts[2], ref))
-    path_m = cost.Measured(prepass_seconds=0.0,
+    path_m = cost.Measured(prepass_seconds=0.0,  # bias 0 exactly: path is the reference
                            seconds_per_spp=path_run.seconds_per_spp(film_pixels),
                            variance=variance.total, bias2=0.0, mean_ratio=1.0)
     runs = {}
@@ -156,14 +231,14 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             decision.skipped[c.name] = f"refused: {err}"
             continue
         build_seconds += seconds
-        run = pilot(scene, sensor, pixels, settings,
-                    lambda s_, smp, r, a, integ=integ: integ.sample(s_, smp, r, None, a)[0],
-                    seed)
-        b2, ratio = cost.bias_squared(run.values, path_run.values)
+        # seeds apart from path's: the bias test takes the two pilots to be independent
+        run = pilot(scene, sensor, pixels, settings, _estimator(integ), seed + _CANDIDATE_SEEDS)
+        bias = cost.bias_squared(run.values, path_run.values)
         measured[c.name] = cost.Measured(
             prepass_seconds=seconds,
             seconds_per_spp=run.seconds_per_spp(film_pixels),
-            variance=relative_variance(run.values, ref), bias2=b2, mean_ratio=ratio)
+            variance=relative_variance(run.values, ref), bias2=bias.b2,
+            mean_ratio=bias.ratio, bias_se=bias.se)
         runs[c.name] = (c, integ, run)
         best = min(best, measured[c.name].score(spp))
 
@@ -176,7 +251,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     for name, (_, _, run) in runs.items():
         measured[name].variance = relative_variance(run.values, pooled)
     decision.measured = measured
-    name = min(measured, key=lambda n: measured[n].score(spp))
+    name = check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, decision,
+                      lambda: budget - (time.perf_counter() - t_start))
     decision.chosen = runs[name][0]
     pilot_seconds = time.perf_counter() - t_start - build_seconds
     return Choice(decision, runs[name][1], {"pilot": pilot_seconds,

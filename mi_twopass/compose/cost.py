@@ -43,6 +43,7 @@ emitter for spike lists, no Lambertian surface for the far fields and rexes, a f
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,15 @@ CAUSTIC_SHARE = 0.2
 
 #: a pilot pair's bias estimate counts beyond this many standard errors (bias_squared)
 BIAS_SIGMAS = 3.0
+#: a winner that may be biased is measured again against path while a bias below its pilot's
+#: detection limit could still change the choice (:func:`hidden_bias_may_decide`): a round
+#: takes the samples per pixel of both estimators to where the limit, which falls as 1/samples
+#: while the bias is small, is CHECK_MARGIN below the bias the winner can afford (at least
+#: twice, at most CHECK_MAX_GROWTH× the last test's, and what the pilot budget still pays
+#: for), at most CHECK_ROUNDS rounds (mi_twopass.compose.choose.check_bias)
+CHECK_MARGIN = 1.25
+CHECK_MAX_GROWTH = 16
+CHECK_ROUNDS = 2
 #: building stops once the pilot and the prepasses built have taken this share of the time
 #: ``path`` is predicted to need for the render (``pilot_budget``)
 PILOT_BUDGET = 0.25
@@ -89,6 +99,13 @@ class Composition:
     @property
     def needs_prepass(self) -> bool:
         return self.plugin != "path"
+
+    @property
+    def biased(self) -> bool:
+        """Whether the composition reads a cache (a far field or rexes), whose bias only the
+        pilot's comparison with path can bound; spike lists alone are unbiased (defensive
+        choice and MIS)."""
+        return self.indirect != "path" or self.caustics != "off"
 
 
 COMPOSITIONS = (
@@ -166,6 +183,8 @@ class Measured:
     variance: float
     bias2: float
     mean_ratio: float
+    #: the standard error of the bias estimate (:class:`Bias`); 0 for path, the reference
+    bias_se: float = 0.0
 
     def predicted_error(self, spp: int) -> float:
         return self.variance / spp + self.bias2
@@ -236,24 +255,37 @@ def best_case_score(parts: VarianceParts, path: Measured, c: Composition, spp: i
     return parts.best_case(c) * path.seconds_per_spp  # (v/N)·(N·t)
 
 
-def bias_squared(values: np.ndarray, path_values: np.ndarray) -> tuple[float, float]:
-    """(b², mean ratio) of a candidate's pilot against path's on the same pixels.
+@dataclass
+class Bias:
+    """A pilot pair's bias estimate (:func:`bias_squared`): ``b2`` the squared relative bias
+    counted (0 unless it stands :data:`BIAS_SIGMAS` standard errors above 0), ``raw`` the
+    estimate itself, ``se`` its standard error, ``ratio`` the ratio of the image means."""
+
+    b2: float
+    raw: float
+    se: float
+    ratio: float
+
+
+def bias_squared(values: np.ndarray, path_values: np.ndarray) -> Bias:
+    """The squared relative bias of a candidate's pilot against path's on the same pixels.
 
     b² is the relMSE floor the candidate's bias sets, per pixel as relMSE counts error:
     b² = mean over pixels p and channels of [(m̄_p − m̄'_p)² − s²_p/n − s'²_p/n'] / (R_p² + ε),
     m̄, s² the pilots' sample means and variances (of the second half of their samples) and
     R_p their pooled mean (of the first half); each pixel's term is an unbiased estimate of
-    its squared bias over R². The difference of the image
-    means alone (this function until session 6) misses a bias that changes sign over the
-    image or sits in a few pixels: on the Cornell box at 128² twopass chose the radiance
-    cache for 2048 spp and reached relMSE 1.2e-3 where path reached 2.3e-4 (bench,
-    docs/results/bench-2026-11-25c). Counted only where it stands :data:`BIAS_SIGMAS`
-    standard errors (of the pixel terms' mean) above 0. ``values``: (pixels, samples, 3)."""
+    its squared bias over R² when the two pilots are independent (they are drawn with
+    different seeds). The difference of the image means alone (this function until session
+    6) misses a bias that changes sign over the image or sits in a few pixels: on the Cornell
+    box at 128² twopass chose the radiance cache for 2048 spp and reached relMSE 1.2e-3 where
+    path reached 2.3e-4 (bench, docs/results/bench-2026-11-25c). Counted only where it stands
+    :data:`BIAS_SIGMAS` standard errors (of the pixel terms' mean) above 0. ``values``:
+    (pixels, samples, 3)."""
     n_c, n_p = values.shape[1], path_values.shape[1]
     m_c, m_p = values.mean(axis=1), path_values.mean(axis=1)
     ratio = float(m_c.mean() / m_p.mean()) if m_p.mean() > 0 else 1.0
     if n_c < 4 or n_p < 4:
-        return 0.0, ratio
+        return Bias(0.0, 0.0, float("inf"), ratio)
     # R_p from the first half of each pilot's samples, the difference from the second: a
     # difference and a denominator from the same samples are correlated (a pixel drawn high
     # has a larger difference and a larger R), which biased b² low
@@ -263,11 +295,33 @@ def bias_squared(values: np.ndarray, path_values: np.ndarray) -> tuple[float, fl
     noise = a.var(axis=1, ddof=1) / a.shape[1] + b.var(axis=1, ddof=1) / b.shape[1]
     d2 = (a.mean(axis=1) - b.mean(axis=1)) ** 2
     terms = ((d2 - noise) / (R**2 + RELMSE_EPS)).mean(axis=1)  # per pixel
-    b2 = float(terms.mean())
+    raw = float(terms.mean())
     se = float(terms.std(ddof=1) / np.sqrt(terms.size)) if terms.size > 1 else float("inf")
-    if not b2 > BIAS_SIGMAS * se:
-        return 0.0, ratio
-    return b2, ratio
+    return Bias(raw if raw > BIAS_SIGMAS * se else 0.0, raw, se, ratio)
+
+
+def bias_slack(m: Measured, runner_up: float, spp: int) -> float:
+    """The squared relative bias candidate ``m`` could carry and still score below the
+    runner-up's score at ``spp``: runner_up / T(spp) − (v/spp + b²)."""
+    return runner_up / m.predicted_seconds(spp) - m.predicted_error(spp)
+
+
+def hidden_bias_may_decide(m: Measured, runner_up: float, spp: int) -> bool:
+    """Whether a bias the pilot could not tell from 0 (up to :data:`BIAS_SIGMAS` standard
+    errors of its estimate) could make candidate ``m`` lose to the runner-up's score at
+    ``spp``: BIAS_SIGMAS·se > :func:`bias_slack`."""
+    return BIAS_SIGMAS * m.bias_se > bias_slack(m, runner_up, spp)
+
+
+def check_samples(have: int, m: Measured, runner_up: float, spp: int) -> int:
+    """Samples per pixel (of each estimator) for the next bias test of ``m``, whose last test
+    had ``have``: where its detection limit BIAS_SIGMAS·se, falling as 1/samples, is
+    :data:`CHECK_MARGIN` below :func:`bias_slack`; within [2, :data:`CHECK_MAX_GROWTH`] ×
+    ``have``."""
+    slack = bias_slack(m, runner_up, spp)
+    limit = BIAS_SIGMAS * m.bias_se
+    growth = CHECK_MARGIN * limit / slack if slack > 0 else math.inf
+    return int(math.ceil(have * min(max(growth, 2.0), CHECK_MAX_GROWTH)))
 
 
 @dataclass
@@ -282,6 +336,9 @@ class Decision:
     best_case: dict = field(default_factory=dict)  # name -> best-case score
     #: name -> (light paths built, light paths the image needs) where the budget cut them
     fitted: dict = field(default_factory=dict)
+    #: name -> [(samples per pixel of each pilot, raw b², its standard error, outcome)]: the
+    #: bias checks of a winner that may be biased (:func:`hidden_bias_may_decide`)
+    bias_checks: dict = field(default_factory=dict)
 
     def reason(self) -> str:
         if self.chosen.name not in self.measured:  # forced, or no prepass could fit

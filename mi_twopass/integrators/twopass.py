@@ -158,11 +158,16 @@ class TwoPassChooser(TwoPassIntegrator):
             "twopass_candidates": {
                 n: {"prepass_seconds": m.prepass_seconds, "seconds_per_spp": m.seconds_per_spp,
                     "relative_variance": m.variance, "bias2": m.bias2,
-                    "mean_ratio": m.mean_ratio, "score": m.score(d.spp)}
+                    "bias2_standard_error": m.bias_se, "mean_ratio": m.mean_ratio,
+                    "score": m.score(d.spp)}
                 for n, m in d.measured.items()},
             "twopass_skipped": dict(d.skipped),
             "twopass_fitted": {n: {"light_paths": f[0], "image_needs": f[1]}
                                for n, f in d.fitted.items()},
+            "twopass_bias_checks": {n: [{"samples_per_pixel": k, "bias2": b2,
+                                         "standard_error": se, "outcome": why}
+                                        for k, b2, se, why in checks]
+                                    for n, checks in d.bias_checks.items()},
             "pilot_seconds": choice.seconds["pilot"],
         }
 

@@ -70,3 +70,26 @@ def test_one_allowed_row_is_built_without_a_pilot():
     assert choice.decision.skipped == {"pilot": "every choice forced from XML"}
     assert choice.seconds["pilot"] == 0.0 and choice.seconds["prepasses"] > 0
     assert choice.integrator.structure is not None
+
+
+def test_a_winner_that_may_be_biased_is_tested_again_before_a_long_render():
+    """At 2^16 spp a bias far below the pilot's noise would dominate the render's error: the
+    radiance cache, whose pilot wins on variance, is sampled again against path (more samples
+    per pixel than the pilot's, both estimators) before it may be chosen, and it is chosen only
+    with its bias measured below what it can afford."""
+    scene = mi.load_dict(hs.box())
+    tp = chooser()
+    path_row = cost.COMPOSITIONS[0]
+    cache_row = next(c for c in cost.COMPOSITIONS
+                     if c.plugin == "radiance_cache" and c.direct == "emitter")
+    choice = run_choose(scene, tp, [path_row, cache_row])
+    d = choice.decision
+    checks = d.bias_checks[cache_row.name]
+    pilot_samples = 9 * PilotSettings().samples
+    tested = [k for k, b2, _, _ in checks if b2 is not None]
+    assert tested and all(k > pilot_samples for k in tested)
+    m = d.measured[cache_row.name]
+    if d.chosen == cache_row:
+        assert not cost.hidden_bias_may_decide(m, d.measured[path_row.name].score(SPP), SPP) \
+            or checks[-1][3].startswith("accepted")
+    assert path_row.name not in d.bias_checks  # path is the reference: never tested

@@ -1,5 +1,7 @@
 """twopass's cost model (mi_twopass.compose.cost): the table, forced choices, the best case, the
 bias estimate and the score."""
+import math
+
 import numpy as np
 import pytest
 
@@ -44,11 +46,12 @@ def test_bias_is_zero_for_pilots_of_the_same_distribution_and_found_when_large()
     rng = np.random.default_rng(3)
     a = rng.exponential(1.0, size=(1024, 96, 3))
     b = rng.exponential(1.0, size=(1024, 96, 3))
-    b2, ratio = cost.bias_squared(a, b)
-    assert b2 == 0.0 and ratio == pytest.approx(1.0, abs=0.01)
-    b2, ratio = cost.bias_squared(1.1 * a, b)
-    assert ratio == pytest.approx(1.1, abs=0.01)
-    assert b2 == pytest.approx(0.01, rel=0.2)
+    bias = cost.bias_squared(a, b)
+    assert bias.b2 == 0.0 and bias.ratio == pytest.approx(1.0, abs=0.01)
+    assert abs(bias.raw) < 4 * bias.se
+    bias = cost.bias_squared(1.1 * a, b)
+    assert bias.ratio == pytest.approx(1.1, abs=0.01)
+    assert bias.b2 == pytest.approx(0.01, rel=0.2) and bias.b2 == bias.raw
 
 
 def test_bias_that_changes_sign_over_the_image_is_found_though_the_mean_is_right():
@@ -58,9 +61,9 @@ def test_bias_that_changes_sign_over_the_image_is_found_though_the_mean_is_right
     a = rng.exponential(1.0, size=(1024, 144, 3))
     b = rng.exponential(1.0, size=(1024, 144, 3))
     sign = np.where(np.arange(1024) % 2 == 0, 1.0, -1.0)[:, None, None]
-    b2, ratio = cost.bias_squared(a * (1.0 + 0.1 * sign), b)
-    assert ratio == pytest.approx(1.0, abs=0.01)
-    assert b2 == pytest.approx(0.01, rel=0.25)
+    bias = cost.bias_squared(a * (1.0 + 0.1 * sign), b)
+    assert bias.ratio == pytest.approx(1.0, abs=0.01)
+    assert bias.b2 == pytest.approx(0.01, rel=0.25)
 
 
 def test_score_is_predicted_error_times_seconds_and_prepass_amortises():
@@ -87,3 +90,23 @@ def test_none_fit_decides_without_a_pilot_only_when_every_floor_is_too_big():
     reasons = cost.none_fit(counts, 16384 * 16, 0.5)
     assert set(reasons) == {"a", "b"} and all("no pilot" in r for r in reasons.values())
     assert cost.none_fit(counts, 16384 * 256, 0.5) is None  # 1 M > 262144: a may fit
+
+
+def test_a_hidden_bias_decides_only_where_the_affordable_bias_is_below_the_detection_limit():
+    m = cost.Measured(prepass_seconds=1.0, seconds_per_spp=0.01, variance=0.1, bias2=0.0,
+                      mean_ratio=1.0, bias_se=1e-4)
+    # 100 spp: 2 s, relMSE 1e-3; the runner-up's 0.01 leaves 0.01 / 2 - 1e-3 = 4e-3 of bias²
+    assert cost.bias_slack(m, 0.01, 100) == pytest.approx(4e-3)
+    assert not cost.hidden_bias_may_decide(m, 0.01, 100)
+    # 10^4 spp: 101 s, relMSE 1e-5; 0.01 / 101 - 1e-5 ≈ 8.9e-5 < 3 × 1e-4
+    slack = 0.01 / 101 - 1e-5
+    assert cost.hidden_bias_may_decide(m, 0.01, 10**4)
+    # the next test's samples: where 3·se·(144 / n) is 1.25× below the slack
+    assert cost.check_samples(144, m, 0.01, 10**4) == math.ceil(144 * 1.25 * 3e-4 / slack)
+    # within [2, 16] × the last test's
+    assert cost.check_samples(144, m, 1.0, 10**4) == 288
+    assert cost.check_samples(144, m, 0.0011, 10**4) == 144 * cost.CHECK_MAX_GROWTH
+    path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.01, variance=1.0, bias2=0.0,
+                         mean_ratio=1.0)
+    # no standard error (path, the reference): nothing hidden, even at a tie
+    assert not cost.hidden_bias_may_decide(path, path.score(10**6), 10**6)
