@@ -61,11 +61,14 @@ BIAS_SIGMAS = 3.0
 #: detection limit could still change the choice (:func:`hidden_bias_may_decide`): a round
 #: takes the samples per pixel of both estimators to where the limit, which falls as 1/samples
 #: while the bias is small, is CHECK_MARGIN below the bias the winner can afford (at least
-#: twice, at most CHECK_MAX_GROWTH× the last test's, and what the pilot budget still pays
-#: for), at most CHECK_ROUNDS rounds (mi_twopass.compose.choose.check_bias)
+#: twice, at most CHECK_MAX_GROWTH× the last test's, and what CHECK_BUDGET still pays for), at
+#: most CHECK_ROUNDS rounds (mi_twopass.compose.choose.check_bias)
 CHECK_MARGIN = 1.25
 CHECK_MAX_GROWTH = 16
 CHECK_ROUNDS = 2
+#: the bias tests may take this share of the time ``path`` is predicted to need for the
+#: render, besides the pilot budget (which the prepasses may have spent)
+CHECK_BUDGET = 0.1
 #: building stops once the pilot and the prepasses built have taken this share of the time
 #: ``path`` is predicted to need for the render (``pilot_budget``)
 PILOT_BUDGET = 0.25
