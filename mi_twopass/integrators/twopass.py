@@ -52,9 +52,13 @@ class TwoPassChooser(TwoPassIntegrator):
            predicted render time is spent, or where the scene gives it nothing
            (one emitter for spike lists, no Lambertian surface, a finite max_depth for a far
            field); else build its prepass and pilot it on the same pixels
-        3. render with the candidate of least predicted relMSE × seconds,
+        3. take the candidate of least predicted relMSE × seconds,
            (prepass + N·t) × (v/N + b²), N the render's samples per pixel, b² its squared
            relative bias against the path pilot, pixel by pixel
+        4. where it reads a cache and a bias too small for its pilot to see could still make
+           it lose to the runner-up, test it against path again with more samples per pixel
+           (within 10 % of path's predicted render time) and choose again
+           (:func:`mi_twopass.compose.choose.check_bias`); render with the winner
 
     Every composition is one of the suite's estimators (or ``path``), each consistent or
     within its own stated bias bound, so every part of path space is estimated exactly once
@@ -64,7 +68,9 @@ class TwoPassChooser(TwoPassIntegrator):
     ``integrator.stats`` holds the chosen estimator's statistics and ``twopass_choice`` (the
     composition), ``twopass_reason`` (the predicted figures that decided), ``twopass_candidates``
     (per candidate built: prepass seconds, seconds per spp, relative variance, bias², score),
-    ``twopass_skipped`` (per composition not built: why), ``pilot_seconds`` and
+    ``twopass_skipped`` (per composition not built: why), ``twopass_bias_checks`` (per
+    candidate tested again: samples per pixel, b², its standard error, outcome),
+    ``pilot_seconds`` (the pilot and the tests) and
     ``prepass_seconds`` (the pilot and every prepass built, the chosen one's included).
 
     .. pluginparameters::
