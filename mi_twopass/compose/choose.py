@@ -49,11 +49,8 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
     (:func:`cost.hidden_bias_may_decide`), both it and path are sampled further on the same
     pixels, to the samples per pixel :func:`cost.check_samples` asks for or as many as the
     tests' ``budget`` (seconds, all tests together) still pays for, and its bias is estimated
-    again from all samples. The estimate of a test counts as it is, max(raw, 0) (unbiased;
-    the pilot's counts only beyond :data:`cost.BIAS_SIGMAS` standard errors): a bias that
-    varies over the image keeps the standard error of the pixels' mean high however many
-    samples each pixel gets (the Cornell box's radiance cache: 1.3e-3 at 2.8 standard errors
-    with 1839 samples). The choice is then made again. A candidate is accepted on its estimate
+    again from all samples; it counts beyond :data:`cost.CHECK_SIGMAS` standard errors (the
+    pilot's beyond :data:`cost.BIAS_SIGMAS`). The choice is then made again. A candidate is accepted on its estimate
     once :data:`cost.CHECK_ROUNDS` tests are done or the budget does not double its samples.
     Each test is recorded in ``decision.bias_checks``."""
     measured = decision.measured
@@ -94,8 +91,9 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
         n_runs += 1
         bias = cost.bias_squared(np.concatenate([run.values, *more[name]], axis=1),
                                  np.concatenate([path_run.values, *path_more], axis=1))
-        m.bias2, m.bias_se = max(bias.raw, 0.0), bias.se
-        checks.append((total, bias.raw, bias.se, "counted"))
+        found = bias.raw > cost.CHECK_SIGMAS * bias.se
+        m.bias2, m.bias_se = (bias.raw if found else 0.0), bias.se
+        checks.append((total, bias.raw, bias.se, "counted" if found else "below the limit"))
 
 
 def _path_estimator(path_integ):
