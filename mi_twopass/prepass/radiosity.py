@@ -227,10 +227,13 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     if not (peak > 0 and math.isfinite(peak)):
         R = (elements if elements is not None else patches).count
         result.update(moments=np.zeros((R, 3)), normal_moments=np.zeros((R, 3)),
-                      deposit_count=np.zeros(R, np.int64))
+                      deposit_count=np.zeros(R, np.int64), deposit_w2=np.zeros(R))
         return deposits, (np.zeros((M + 1, 3)) if elements is not None else None), result, 0
     quantum = 2.0 ** (math.ceil(math.log2(peak)) - _FIXED_BITS)
     inv_quantum = dr.opaque(mi.Float64, 1.0 / quantum)
+    # the squared deposits (receiver_spread's effective count) on their own fixed-point scale
+    quantum_w2 = 2.0 ** (math.ceil(math.log2(peak * peak)) - _FIXED_BITS)
+    inv_quantum_w2 = dr.opaque(mi.Float64, 1.0 / quantum_w2)
     target = dr.zeros(mi.Int64, 3 * (N + 1))
     target_e = dr.zeros(mi.Int64, 3 * (M + 1)) if elements is not None else None
     # where on the receiving mesh (the elements, else the patches) the flux lands: Σ w·(p − c)/r
@@ -242,6 +245,7 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     target_m = dr.zeros(mi.Int64, 3 * (R + 1))
     target_nrm = dr.zeros(mi.Int64, 3 * (R + 1))
     target_n = dr.zeros(mi.UInt32, R + 1)
+    target_w2 = dr.zeros(mi.Int64, R + 1)
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
 
     active = dr.max(flux) > 0
@@ -276,6 +280,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         side_n = dr.select(dr.dot(ray.d, si.n) < 0, si.n, -si.n)
         deposit(target_nrm, rid, side_n * dr.mean(flux), at_recv)
         dr.scatter_reduce(dr.ReduceOp.Add, target_n, mi.UInt32(1), rid, at_recv)
+        w2 = dr.clip(dr.round(mi.Float64(dr.square(dr.mean(flux))) * inv_quantum_w2), 0.0,
+                     _FIXED_CLAMP)
+        dr.scatter_reduce(dr.ReduceOp.Add, target_w2, mi.Int64(w2), rid, at_recv)
 
         bsdf = si.bsdf(ray)
         u1 = rng.next_float32()
@@ -334,6 +341,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     result["normal_moments"] = np.array(target_nrm, dtype=np.int64).reshape(R + 1, 3)[:R] \
         * quantum
     result["deposit_count"] = np.array(target_n, dtype=np.int64)[:R]
+    result["deposit_w2"] = np.array(target_w2, dtype=np.int64)[:R].astype(np.float64) \
+        * quantum_w2
     return deposits, deposits_e, result, rays
 
 
@@ -412,6 +421,19 @@ def mean_normals(recv) -> np.ndarray:
     return out
 
 
+def effective_count(flux, sum_w2, count) -> np.ndarray:
+    """Per receiver: the effective number of its deposits, n_eff = (Σw)² / Σw², w a deposit's
+    (channel-mean) flux: the count whose equal-weight noise the weighted centroid has. Particles
+    of unequal flux (a sun's and a small lamp's, or after roulette) make it far smaller than the
+    count; counting every deposit as one set receiver_spread's noise floor too low where one
+    heavy particle landed, uncached exactly the receivers that had drawn more light than their
+    share and left the far gather reading the others, 7.5 % dark on scenes_xml/mixed_room.xml
+    (``tools/far_gather_hits.py``; 0.98 with no receiver uncached). ``count`` where Σw² is 0
+    (deposits below its fixed-point resolution)."""
+    n_eff = np.where(sum_w2 > 0, flux ** 2 / np.where(sum_w2 > 0, sum_w2, 1.0), count)
+    return np.minimum(n_eff, count)
+
+
 def receiver_spread(moments, normal_moments, count, flux, area_normal) -> np.ndarray:
     """Per receiver: how unevenly its deposited flux covers it, beyond the particle noise — the
     larger of (1) the distance of the flux centroid from the receiver's centre in units of its
@@ -419,7 +441,8 @@ def receiver_spread(moments, normal_moments, count, flux, area_normal) -> np.nda
     weighted mean normal from the area-weighted mean normal, |Σ w·n / Σ w − n̄| (on a curved
     receiver: light arriving on the faces turned towards a light), each less SPREAD_Z times
     its noise (0.57 / sqrt(deposits); for (2) scaled by the receiver's curvature,
-    sqrt(1 − |n̄|²)); 0 where nothing landed."""
+    sqrt(1 − |n̄|²)); ``count``: the deposits, effective ones where their fluxes differ
+    (:func:`effective_count`); 0 where nothing landed."""
     w = np.where(flux > 0, flux, 1.0)
     root_n = np.sqrt(np.maximum(count, 1))
     offset = np.linalg.norm(moments, axis=1) / w - SPREAD_Z * 0.57 / root_n
@@ -473,6 +496,7 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
     moments = np.zeros((recv.count, 3))
     normal_moments = np.zeros((recv.count, 3))
     deposit_count = np.zeros(recv.count, np.int64)
+    deposit_w2 = np.zeros(recv.count)
     rays = 0
     traced = 0
     if len(scene.emitters()) > 0 and N >= 0:
@@ -498,6 +522,7 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
                 moments += result["moments"]
                 normal_moments += result["normal_moments"]
                 deposit_count += result["deposit_count"]
+                deposit_w2 += result["deposit_w2"]
                 rays += batch_rays
                 traced += n
                 if progress:
@@ -505,8 +530,9 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
     dr.sync_thread()
     seconds = time.perf_counter() - t0
     recv_flux = (flux_e if elements is not None else flux)[:recv.count].mean(axis=1)
-    recv.uncache(receiver_spread(moments, normal_moments, deposit_count, recv_flux,
-                                 mean_normals(recv)) > SPREAD_MAX)
+    recv.uncache(receiver_spread(moments, normal_moments, effective_count(recv_flux, deposit_w2,
+                                                                          deposit_count),
+                                 recv_flux, mean_normals(recv)) > SPREAD_MAX)
     E = units.irradiance_from_flux(flux[:N], _receiving_area(patches, flux[:N]))
     extra = {}
     if elements is not None:
