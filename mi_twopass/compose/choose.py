@@ -34,7 +34,7 @@ _CANDIDATE_SEEDS = 16
 _CHECK_SEEDS = 64
 
 
-def _estimator(integ):
+def candidate_estimator(integ):
     """A candidate integrator's ``sample`` as a pilot estimator (its radiance alone)."""
     return lambda scene, sampler, ray, active: integ.sample(scene, sampler, ray, None, active)[0]
 
@@ -56,7 +56,7 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
     measured = decision.measured
     more = {name: [] for name in runs}  # name -> further sample arrays (pixels, n, 3)
     path_more = []
-    path_estimator = _path_estimator(path_integ)
+    estimate_path = path_sum_estimator(path_integ)
     settled = set()
     n_runs = 0
     t_start = time.perf_counter()
@@ -84,9 +84,9 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
             continue
         if total > have_path:
             path_more.append(run_samples(scene, sensor, pixels, total - have_path,
-                                         path_estimator, seed + _CHECK_SEEDS + n_runs)[0])
+                                         estimate_path, seed + _CHECK_SEEDS + n_runs)[0])
             n_runs += 1
-        more[name].append(run_samples(scene, sensor, pixels, total - have, _estimator(integ),
+        more[name].append(run_samples(scene, sensor, pixels, total - have, candidate_estimator(integ),
                                       seed + _CHECK_SEEDS + n_runs)[0])
         n_runs += 1
         bias = cost.bias_squared(np.concatenate([run.values, *more[name]], axis=1),
@@ -96,7 +96,7 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
         checks.append((total, bias.raw, bias.se, "counted" if found else "below the limit"))
 
 
-def _path_estimator(path_integ):
+def path_sum_estimator(path_integ):
     """The path pilot's estimator: the sum of the component path tracer's parts."""
     def estimate(scene, sampler, ray, active):
         direct, caustic, indirect, _ = path_integ.sample_components(scene, sampler, ray, active)
@@ -235,7 +235,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             continue
         build_seconds += seconds
         # seeds apart from path's: the bias test takes the two pilots to be independent
-        run = pilot(scene, sensor, pixels, settings, _estimator(integ), seed + _CANDIDATE_SEEDS)
+        run = pilot(scene, sensor, pixels, settings, candidate_estimator(integ), seed + _CANDIDATE_SEEDS)
         bias = cost.bias_squared(run.values, path_run.values)
         measured[c.name] = cost.Measured(
             prepass_seconds=seconds,
@@ -262,4 +262,4 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
                                              "prepasses": build_seconds})
 
 
-__all__ = ["Choice", "choose", "traits"]
+__all__ = ["Choice", "candidate_estimator", "check_bias", "choose", "path_sum_estimator", "traits"]
