@@ -262,4 +262,5 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
                                              "prepasses": build_seconds})
 
 
-__all__ = ["Choice", "candidate_estimator", "check_bias", "choose", "path_sum_estimator", "traits"]
+__all__ = ["Choice", "candidate_estimator", "check_bias", "choose", "path_sum_estimator",
+           "traits"]
