@@ -50,8 +50,9 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
     pixels, to the samples per pixel :func:`cost.check_samples` asks for or as many as the
     tests' ``budget`` (seconds, all tests together) still pays for, and its bias is estimated
     again from all samples; it counts beyond :data:`cost.CHECK_SIGMAS` standard errors (the
-    pilot's beyond :data:`cost.BIAS_SIGMAS`). The choice is then made again. A candidate is accepted on its estimate
-    once :data:`cost.CHECK_ROUNDS` tests are done or the budget does not double its samples.
+    pilot's beyond :data:`cost.BIAS_SIGMAS`). The choice is then made again. A candidate is
+    accepted on its estimate once :data:`cost.CHECK_ROUNDS` tests are done or the budget does
+    not double its samples.
     Each test is recorded in ``decision.bias_checks``."""
     measured = decision.measured
     more = {name: [] for name in runs}  # name -> further sample arrays (pixels, n, 3)
@@ -86,7 +87,8 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
             path_more.append(run_samples(scene, sensor, pixels, total - have_path,
                                          estimate_path, seed + _CHECK_SEEDS + n_runs)[0])
             n_runs += 1
-        more[name].append(run_samples(scene, sensor, pixels, total - have, candidate_estimator(integ),
+        more[name].append(run_samples(scene, sensor, pixels, total - have,
+                                      candidate_estimator(integ),
                                       seed + _CHECK_SEEDS + n_runs)[0])
         n_runs += 1
         bias = cost.bias_squared(np.concatenate([run.values, *more[name]], axis=1),
