@@ -98,10 +98,13 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
         checks.append((total, bias.raw, bias.se, "counted" if found else "below the limit"))
 
 
-def path_sum_estimator(path_integ):
-    """The path pilot's estimator: the sum of the component path tracer's parts."""
+def path_sum_estimator(path_integ, parts_out=None):
+    """The path pilot's estimator: the sum of the component path tracer's parts; each call's
+    ``(direct, caustic, indirect)`` appended to ``parts_out`` where one is given."""
     def estimate(scene, sampler, ray, active):
         direct, caustic, indirect, _ = path_integ.sample_components(scene, sampler, ray, active)
+        if parts_out is not None:
+            parts_out.append((direct, caustic, indirect))
         return direct + caustic + indirect
     return estimate
 
@@ -132,7 +135,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     4. per row, cheapest best case first: skipped for a structural reason, a best case that
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
        the photons the budget pays for first); else built and piloted on the same pixels;
-    5. variances again against the pooled pixel means; the lowest score wins."""
+    5. variances again against the pooled pixel means; the lowest score wins, once a winner
+       that may be biased has passed the bias test of :func:`check_bias`."""
     spp = max(int(render_spp or sensor.sampler().sample_count()), 1)
     t_start = time.perf_counter()
     build_seconds = 0.0
@@ -169,13 +173,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
                                                   "prepasses": 0.0})
     parts_out = []
-
-    def path_estimator(scene_, sampler, ray, active):
-        d, c_, i, _ = path_integ.sample_components(scene_, sampler, ray, active)
-        parts_out.append((d, c_, i))
-        return d + c_ + i
-
-    path_run = pilot(scene, sensor, pixels, settings, path_estimator, seed)
+    path_run = pilot(scene, sensor, pixels, settings, path_sum_estimator(path_integ, parts_out),
+                     seed)
     parts = [np.concatenate([samples_array(p[k], pixels, n) for p, n in
                              zip(parts_out, (settings.samples,
                                              4 * settings.samples,
