@@ -4,7 +4,9 @@ import os
 from tqdm.auto import tqdm
 
 
-def progress(total=None, desc="", unit="it"):
-    """A tqdm bar on stderr; hidden when stderr is not a terminal or MI_TWOPASS_QUIET is set."""
-    disable = True if os.environ.get("MI_TWOPASS_QUIET") else None
+def progress(total=None, desc="", unit="it", show=True):
+    """A tqdm bar on stderr; hidden when stderr is not a terminal, MI_TWOPASS_QUIET is set or
+    ``show`` is false (a caller's ``progress=False``): a hidden bar's ``update`` does nothing,
+    so callers use it either way."""
+    disable = True if (not show or os.environ.get("MI_TWOPASS_QUIET")) else None
     return tqdm(total=total, desc=desc, unit=unit, disable=disable, leave=False, dynamic_ncols=True)

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import math
 import time
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import drjit as dr
@@ -500,9 +499,8 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
     rays = 0
     traced = 0
     if len(scene.emitters()) > 0 and N >= 0:
-        bar = progress_bar(total=n_particles, desc="radiosity", unit="particle") if progress \
-            else nullcontext()
-        with bar:
+        with progress_bar(total=n_particles, desc="radiosity", unit="particle",
+                          show=progress) as bar:
             for first in range(0, n_particles, batch_size):
                 n = min(batch_size, n_particles - first)
                 try:
@@ -525,8 +523,7 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
                 deposit_w2 += result["deposit_w2"]
                 rays += batch_rays
                 traced += n
-                if progress:
-                    bar.update(n)
+                bar.update(n)
     dr.sync_thread()
     seconds = time.perf_counter() - t0
     recv_flux = (flux_e if elements is not None else flux)[:recv.count].mean(axis=1)

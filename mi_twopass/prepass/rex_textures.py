@@ -70,7 +70,6 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import drjit as dr
@@ -1112,11 +1111,10 @@ def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     # final shoot: every leaf afresh, one jittered photon per quadrant, `reps` times so that
     # each emitter uses its budget
     shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2))
-    bar = progress(total=shoot.lanes, desc="rex light pass", unit="photon") if show_progress \
-        else nullcontext()
-    with bar:
+    with progress(total=shoot.lanes, desc="rex light pass", unit="photon",
+                  show=show_progress) as bar:
         records, rays, hits = shoot_photons(scene, tables, shoot, settings, seed, _SALT_PHOTON,
-                                            keep_direct, bar if show_progress else None)
+                                            keep_direct, bar)
     stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=shoot.lanes,
                  light_hit_percent=100.0 * hits / max(shoot.lanes, 1),
                  light_tree_leaves=int(np.count_nonzero(tree.leaf)),

@@ -102,7 +102,6 @@ from __future__ import annotations
 
 import math
 import time
-from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 
 import drjit as dr
@@ -1299,11 +1298,10 @@ def build_spike_prepass(scene, settings: SpikeSettings, solution=None, vl_thresh
     sources = build_sources(scene, solution, vl_threshold=vl_threshold, e_high_rel=e_high_rel,
                             e_low_rel=e_low_rel, E_high=E_high, E_low=E_low, seed=seed)
     t_sources = time.perf_counter() - t0
-    bar = progress_bar(total=settings.visibility_max_rays // VIS_ROUND, desc="spike lists",
-                       unit="round") if progress else nullcontext()
-    with bar:
+    with progress_bar(total=settings.visibility_max_rays // VIS_ROUND, desc="spike lists",
+                      unit="round", show=progress) as bar:
         grid = build_spike_grid(scene, sources, settings, seed=seed, sensor=sensor,
-                                solution=solution, bar=bar if progress else None)
+                                solution=solution, bar=bar)
     stats = dict(grid.stats)
     stats.update(sources=sources.count, virtual_luminaires=int((sources.kind == KIND_PATCH).sum()),
                  delta_sources=int(sources.delta_ids.size), E_high=float(sources.E_high),
