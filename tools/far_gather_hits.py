@@ -1,7 +1,7 @@
 """Far-gather reads against a path-traced estimate of the same light, hit by hit.
 
     .venv/bin/python tools/far_gather_hits.py ../shared/scenes/veach-bidir/scene.xml \
-        [--props '{"elements_per_patch": 16}'] [--res 64] [--paths 64]
+        [--props '{"elements_per_patch": 16}'] [--res 64] [--paths 64] [--seed 3]
 
 From the camera's first Lambertian hits, one cosine-sampled gather ray each; where it lands
 farther than ``r_thresh`` on a cached receiver, radiosity_gather reads B_r/π of the element
@@ -29,10 +29,11 @@ def main():
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--lanes", type=int, default=1 << 18)
     ap.add_argument("--paths", type=int, default=64)
+    ap.add_argument("--seed", type=int, default=3, help="the prepass's seed")
     a = ap.parse_args()
     scene = load_scene(a.scene, film_res=a.res)
     integ = mi.load_dict({"type": "radiosity_gather", **json.loads(a.props)})
-    mi.render(scene, integrator=integ, spp=1, seed=3)  # builds the prepass
+    mi.render(scene, integrator=integ, spp=1, seed=a.seed)  # builds the prepass
     sol = integ.structure.solution
     n = a.lanes
     smp = mi.load_dict({"type": "independent"})
