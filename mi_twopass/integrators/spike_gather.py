@@ -294,7 +294,8 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
     def prepass(self, scene, seed):
         """GSII steps 1–2 (patches, radiosity), then §3.3 step 3: sources and spike lists
         (:func:`mi_twopass.prepass.spike_grid.build`)."""
-        return build_spike(scene, self.spike_settings(scene), self.radiosity, seed)
+        return build_spike(scene, self.spike_settings(scene), self.radiosity, seed,
+                           sensor=self.prepass_sensor)
 
     def prepass_stats(self, pre):
         st = dict(pre.stats)

@@ -62,6 +62,7 @@ from ..rays import spawn_ray
 from ..scene.patches import Patches, build_patches
 from ..scenefile import load_scene
 from ..seeds import splitmix64
+from . import emission_guide
 
 #: default cap on surface interactions per particle (see the module docstring for its bias)
 DEFAULT_MAX_BOUNCES = 1024
@@ -174,12 +175,18 @@ class RadiositySolution:
 # ----------------------------------------------------------------------------------------------
 
 
-def _sample_emission(scene, patches, rng, active):
-    """Particles leaving the emitters: (ray origin, direction, flux weight) for each lane."""
+def _sample_emission(scene, patches, rng, active, guide=None):
+    """Particles leaving the emitters: (ray origin, direction, flux weight, cell) for each
+    lane. The emitter and its (u2, u3) samples are Mitsuba's choice, or drawn from ``guide``
+    (:mod:`mi_twopass.prepass.emission_guide`; ``cell``: the guide's cell, else 0)."""
     u1 = rng.next_float32()
     u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
     u3 = mi.Point2f(rng.next_float32(), rng.next_float32())
-    index, sel_weight, u1 = scene.sample_emitter(u1, active)
+    if guide is None:
+        index, sel_weight, u1 = scene.sample_emitter(u1, active)
+        cell = dr.zeros(mi.UInt32, dr.width(u1))
+    else:
+        cell, index, sel_weight, u1, u2, u3 = guide.sample(u1, u2, u3, active)
     emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), index, active)
     flags = emitter.flags()
     is_area = active & mi.has_flag(flags, mi.EmitterFlags.Surface) \
@@ -200,12 +207,16 @@ def _sample_emission(scene, patches, rng, active):
     d = dr.select(is_area, d_area, ray.d)
     w = dr.select(is_area, w_area, weight) * sel_weight
     w = dr.select(active & dr.all(dr.isfinite(w)), w, 0.0)
-    return o, d, mi.Color3f(w)
+    return o, d, mi.Color3f(w), cell
 
 
-def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None):
+def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None,
+                 guide=None, importance=None):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, element deposits (M+1, 3)
-    or None, accounting dict, rays)."""
+    or None, accounting dict, rays). ``guide``: where particles start
+    (:mod:`mi_twopass.prepass.emission_guide`), else as Mitsuba samples emitter rays.
+    ``importance``: per receiver (+1 sentinel), a weight; the accounting then holds each
+    particle's ``cell`` and ``score``, the importance-weighted mean flux of all its deposits."""
     N = patches.count
     M = elements.count if elements is not None else 0
     # seed, offset and scale are opaque: as literals they would make every seed (every fresh
@@ -213,8 +224,13 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     idx = dr.arange(mi.UInt64, n) + dr.opaque(mi.UInt64, first_index)
     rng = mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, splitmix64(seed)), initseq=idx)
     active = dr.full(mi.Bool, True, n)
-    o, d, flux = _sample_emission(scene, patches, rng, active)
+    o, d, flux, cell = _sample_emission(scene, patches, rng, active, guide)
     flux = flux * dr.opaque(mi.Float, 1.0 / n_total)
+    lane = dr.arange(mi.UInt32, n)
+    score = dr.zeros(mi.Float, n)
+    dr.make_opaque(score)
+    importance_t = mi.Float(np.asarray(importance, np.float32)) if importance is not None \
+        else None
     dr.eval(o, d, flux, rng)
 
     flux_np = np.array(flux, dtype=np.float64).reshape(3, -1)
@@ -226,7 +242,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     if not (peak > 0 and math.isfinite(peak)):
         R = (elements if elements is not None else patches).count
         result.update(moments=np.zeros((R, 3)), normal_moments=np.zeros((R, 3)),
-                      deposit_count=np.zeros(R, np.int64), deposit_w2=np.zeros(R))
+                      deposit_count=np.zeros(R, np.int64), deposit_w2=np.zeros(R),
+                      cell=np.asarray(cell, np.int64), score=np.zeros(n))
         return deposits, (np.zeros((M + 1, 3)) if elements is not None else None), result, 0
     quantum = 2.0 ** (math.ceil(math.log2(peak)) - _FIXED_BITS)
     inv_quantum = dr.opaque(mi.Float64, 1.0 / quantum)
@@ -257,10 +274,10 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             q = dr.clip(dr.round(mi.Float64(comp) * inv_quantum), -_FIXED_CLAMP, _FIXED_CLAMP)
             dr.scatter_reduce(dr.ReduceOp.Add, tgt, mi.Int64(q), slot * 3 + c, mask)
 
-    def cond(o, d, flux, depth, rng, active, absorbed, escaped, chunk_end):
+    def cond(o, d, flux, depth, rng, active, absorbed, escaped, lane, chunk_end):
         return active & (depth < chunk_end)
 
-    def body(o, d, flux, depth, rng, active, absorbed, escaped, chunk_end):
+    def body(o, d, flux, depth, rng, active, absorbed, escaped, lane, chunk_end):
         ray = mi.Ray3f(o, d)
         si = scene.ray_intersect(ray, mi.RayFlags.All, False, active)
         hit = active & si.is_valid()
@@ -282,6 +299,10 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         w2 = dr.clip(dr.round(mi.Float64(dr.square(dr.mean(flux))) * inv_quantum_w2), 0.0,
                      _FIXED_CLAMP)
         dr.scatter_reduce(dr.ReduceOp.Add, target_w2, mi.Int64(w2), rid, at_recv)
+        if importance_t is not None:
+            dr.scatter_reduce(dr.ReduceOp.Add, score,
+                              dr.mean(flux) * dr.gather(mi.Float, importance_t, rid, at_recv),
+                              lane, at_recv)
 
         bsdf = si.bsdf(ray)
         u1 = rng.next_float32()
@@ -303,17 +324,17 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         o = dr.select(survive, o_new, o)
         d = dr.select(survive, d_new, d)
         depth = dr.select(active, depth + 1, depth)
-        return o, d, flux, depth, rng, survive, absorbed, escaped, chunk_end
+        return o, d, flux, depth, rng, survive, absorbed, escaped, lane, chunk_end
 
     rays = 0
     start_depth = 0
     while True:
         chunk_end = dr.opaque(mi.UInt32, min(start_depth + _CHUNK, max_bounces))
         depth_before = int(dr.sum(mi.UInt64(depth))[0]) if dr.width(depth) else 0
-        o, d, flux, depth, rng, active, absorbed, escaped, _ = dr.while_loop(
-            (o, d, flux, depth, rng, active, absorbed, escaped, chunk_end), cond, body,
+        o, d, flux, depth, rng, active, absorbed, escaped, lane, _ = dr.while_loop(
+            (o, d, flux, depth, rng, active, absorbed, escaped, lane, chunk_end), cond, body,
             label="radiosity_particles", mode="symbolic")
-        dr.eval(o, d, flux, depth, rng, active, absorbed, escaped)
+        dr.eval(o, d, flux, depth, rng, active, absorbed, escaped, lane, score)
         rays += int(dr.sum(mi.UInt64(depth))[0]) - depth_before
         result["absorbed"] += np.array(absorbed, dtype=np.float64).reshape(3, -1).sum(axis=1)
         result["escaped"] += np.array(escaped, dtype=np.float64).reshape(3, -1).sum(axis=1)
@@ -322,7 +343,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         if n_alive == 0:
             break
         keep = dr.compress(active)
-        o, d, flux, depth = (dr.gather(type(x), x, keep) for x in (o, d, flux, depth))
+        o, d, flux, depth, lane = (dr.gather(type(x), x, keep)
+                                   for x in (o, d, flux, depth, lane))
         rng = dr.gather(mi.PCG32, rng, keep)
         active = dr.full(mi.Bool, True, n_alive)
         absorbed = dr.zeros(mi.Color3f, n_alive)
@@ -342,6 +364,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     result["deposit_count"] = np.array(target_n, dtype=np.int64)[:R]
     result["deposit_w2"] = np.array(target_w2, dtype=np.int64)[:R].astype(np.float64) \
         * quantum_w2
+    result["cell"] = np.asarray(cell, np.int64)
+    result["score"] = np.asarray(score, np.float64)
     return deposits, deposits_e, result, rays
 
 
@@ -454,8 +478,8 @@ def receiver_spread(moments, normal_moments, count, flux, area_normal) -> np.nda
 
 def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | None = None,
                     seed: int = 0, max_bounces: int = DEFAULT_MAX_BOUNCES, progress: bool = True,
-                    batch_size: int = 1 << 18, elements: Patches | None = None
-                    ) -> RadiositySolution:
+                    batch_size: int = 1 << 18, elements: Patches | None = None,
+                    guide=None) -> RadiositySolution:
     """Stochastic shooting radiosity of ``patches`` (built with defaults when ``None``).
 
     ``elements``: a finer patch mesh of the same scene (``build_patches`` with a larger budget)
@@ -471,6 +495,9 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
     (office: 12 % of the one-bounce indirect at 1024 patches). Elements shrink the edge without
     more particles: the per-element noise is averaged by the many gather rays of a pixel, the
     bias is not.
+
+    ``guide``: where the particles start (:func:`guide_emission`), else as Mitsuba samples
+    emitter rays.
 
     ``n_particles`` defaults to ``PARTICLES_PER_PATCH`` × patch count (at least 2^16). Same seed,
     same solution bit for bit. A scene without emitters (or with emitters of zero power) gives
@@ -505,7 +532,8 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
                 n = min(batch_size, n_particles - first)
                 try:
                     deposits, deposits_e, result, batch_rays = _trace_batch(
-                        scene, patches, n, first, seed, n_particles, max_bounces, elements)
+                        scene, patches, n, first, seed, n_particles, max_bounces, elements,
+                        guide)
                 except (RuntimeError, NotImplementedError) as exc:
                     names = ", ".join(sorted({e.class_name() for e in scene.emitters()}))
                     raise RuntimeError(
@@ -544,6 +572,66 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
         E=E, rays=int(rays), seconds=seconds, particles=traced, max_bounces=max_bounces,
         flux_emitted=acc["emitted"], flux_absorbed=acc["absorbed"],
         flux_escaped=acc["escaped"], flux_truncated=acc["truncated"], **extra)
+
+
+#: seed offset of the emission guide's pilot particles (apart from the solve's)
+_GUIDE_SEED = 0x5EED
+#: the relative standard deviation of the camera-weighted flux a guided solve is given
+#: particles for (:func:`guided_particles`): a quarter of the 1 % bound on an image's mean, which
+#: a prepass's noise does not average away with samples per pixel
+FLUX_NOISE = 0.0025
+#: most particles a guided solve adds, as a multiple of ``particles_per_patch`` x patches
+MAX_PARTICLE_GROWTH = 8
+
+
+def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
+    """The importance-driven emission of :mod:`mi_twopass.prepass.emission_guide` for ``scene``
+    seen by ``sensor``: (guide, pilot particles, the relative standard deviation of one guided
+    particle's camera-weighted flux as the pilot predicts it), or (None, 0, 0.0) where every
+    emitter is an area light, there is no sensor, or the camera reads nothing the pilot's
+    particles reach. The pilot's two stages: every cell, then the cells that scored and their
+    neighbours."""
+    emitters = scene.emitters()
+    if sensor is None or not emitters or \
+            all(emission_guide.is_area_emitter(e) for e in emitters):
+        return None, 0, 0.0
+    receivers = elements if elements is not None else patches
+    W = emission_guide.camera_importance(scene, sensor, receivers, seed)
+    if not W.sum() > 0:
+        return None, 0, 0.0
+    cells = emission_guide.cells(scene)
+    cell_of, score, traced = [], [], 0
+
+    def run(pilot_guide, n, stage):
+        nonlocal traced
+        _, _, result, _ = _trace_batch(scene, patches, n, 0, seed + _GUIDE_SEED + stage, n,
+                                       DEFAULT_MAX_BOUNCES, elements, guide=pilot_guide,
+                                       importance=W)
+        cell_of.append(result["cell"])
+        # the common scale f·V_c: x the pilot's probability of the cell x its particle count
+        score.append(result["score"] * pilot_guide.pmf[result["cell"]] * n)
+        traced += n
+
+    run(emission_guide.uniform(cells),
+        max(emission_guide.PILOT_PER_CELL * cells.count, 1 << 13), 0)
+    lit = emission_guide.neighbour_max(
+        cells, emission_guide.cell_rms(cells, cell_of[0], score[0])) > 0
+    if lit.any():
+        run(emission_guide.EmissionGuide(cells, lit.astype(np.float64)),
+            emission_guide.PILOT_FOCUS * int(lit.sum()), 1)
+    cell_of, score = np.concatenate(cell_of), np.concatenate(score)
+    guide = emission_guide.fitted(cells, cell_of, score)
+    if guide is None:
+        return None, traced, 0.0
+    return guide, traced, emission_guide.predicted_noise(cells, guide.pmf, cell_of, score, 1)
+
+
+def guided_particles(n_particles: int, noise_per_particle: float) -> int:
+    """The particle count that brings the predicted relative standard deviation of the camera-
+    weighted flux (:func:`guide_emission`) to ``FLUX_NOISE``: at least ``n_particles``, at most
+    ``MAX_PARTICLE_GROWTH`` times it."""
+    need = math.ceil((noise_per_particle / FLUX_NOISE) ** 2) if noise_per_particle > 0 else 0
+    return int(min(max(n_particles, need), MAX_PARTICLE_GROWTH * n_particles))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -636,6 +724,11 @@ class RadiosityPrepass:
     virtual: VirtualLuminaires
     seconds: float
     simplified: bool = False
+    #: importance-driven emission (:func:`guide_emission`): its cells and pilot particles
+    guide_cells: int = 0
+    guide_particles: int = 0
+    #: the relative standard deviation of the camera-weighted flux the pilot predicts
+    flux_noise: float = 0.0
 
     @property
     def patches(self):
@@ -659,19 +752,28 @@ class RadiosityPrepass:
                 "patches": int(sol.patches.count),
                 "elements": int(sol.elements.count) if sol.elements is not None else 0,
                 "virtual_luminaires": self.virtual.count,
+                "guided_emission_cells": self.guide_cells,
+                "guide_pilot_particles": self.guide_particles,
+                "radiosity_particles": int(sol.particles),
+                "predicted_flux_noise": self.flux_noise,
                 # patches / elements cut by geometry: traced on, not read (light-leak guard)
                 "split_patches": int(np.sum(sol.patches.is_split)),
                 "split_elements": int(np.sum(sol.elements.is_split))
                 if sol.elements is not None else 0}
 
 
-def build(scene, settings: RadiositySettings, seed: int, progress: bool = True) -> RadiosityPrepass:
+def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
+          sensor=None) -> RadiosityPrepass:
     """The radiosity prepass shared by radiosity_gather, spike_gather and radiance_cache (GSII
     steps 1–2, Zimmerman & Shirley §2.5 / §3.3 step 2): patches of at most ``max_patches``,
     receiving elements, max(``min_particles``, ``particles_per_patch`` × patches) particles
-    (the count follows the patches, not the elements), then the virtual luminaires. With
+    (the count follows the patches, not the elements; where the emission is guided, more —
+    up to ``MAX_PARTICLE_GROWTH`` times — until the camera-weighted flux's predicted noise is
+    ``FLUX_NOISE``, :func:`guided_particles`), then the virtual luminaires. With
     ``prepass_scene`` it all runs on that simplified scene. ``progress``: a bool (bars on the
-    solve), as :func:`solve_radiosity`'s."""
+    solve), as :func:`solve_radiosity`'s. ``sensor``: the camera whose reads the particles of
+    emitters other than area lights are guided to (:func:`guide_emission`); ``None``: not
+    guided."""
     t0 = time.perf_counter()
     simplified = bool(settings.prepass_scene)
     target = load_scene(settings.prepass_scene) if simplified else scene
@@ -679,9 +781,13 @@ def build(scene, settings: RadiositySettings, seed: int, progress: bool = True) 
     elements = receiving_elements(target, settings.max_patches, settings.elements_per_patch,
                                   seed)
     n_particles = max(settings.min_particles, settings.particles_per_patch * patches.count)
+    guide, pilot, noise = guide_emission(target, sensor, patches, elements, seed)
+    n_particles = guided_particles(n_particles, noise)
     solution = solve_radiosity(target, patches, n_particles=n_particles, seed=seed,
-                               elements=elements,
-                               progress=bool(progress))
+                               elements=elements, progress=bool(progress), guide=guide)
     virtual = VirtualLuminaires(solution, settings.vl_threshold)
     return RadiosityPrepass(scene=target, solution=solution, virtual=virtual,
-                            seconds=time.perf_counter() - t0, simplified=simplified)
+                            seconds=time.perf_counter() - t0, simplified=simplified,
+                            guide_cells=guide.cells.count if guide is not None else 0,
+                            guide_particles=pilot,
+                            flux_noise=noise / math.sqrt(n_particles) if guide else 0.0)

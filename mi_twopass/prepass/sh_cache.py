@@ -706,7 +706,8 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
     points = collect_shading_points(scene, sensor, settings.max_points, seed) \
         if sensor is not None else None
     alpha = cache_alpha(scene, settings, None if points is None else points[0])
-    rad = None if settings.fake_gi else build_radiosity(scene, settings.radiosity, seed, progress)
+    rad = None if settings.fake_gi else build_radiosity(scene, settings.radiosity, seed, progress,
+                                                        sensor=sensor)
     patches = rad.patches if rad is not None else \
         build_patches(scene, max_patches=settings.radiosity.max_patches, seed=seed)
     # a near triangle sends R_t only from a cached patch (as cached_surface at render time)
