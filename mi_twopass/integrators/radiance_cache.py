@@ -89,11 +89,12 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     Mitsuba's own is absolute below 1 m), shadow rays included, so a scene scaled by 1e-4 or 1e4 renders the same image.
 
     **Infinite emitters in a box that misses shapes.** Mitsuba 3.9.1 gives the mesh it merges
-    from shapes sharing a BSDF an invalid ``bbox()``, and a sky, sun or envmap then shoots its
-    particles (``sample_ray``) from the bounding sphere of the other shapes only (a room of
-    merged walls: flux ~1e-7 of the true one). Where a scene has such emitters and its
-    bounding box misses shapes (:func:`infinite_emitters_unbounded`), the radiosity prepass
-    cannot be trusted: the integrator warns and renders ``path``.
+    from shapes sharing a BSDF an invalid ``bbox()``, and a sky, sun or envmap's own
+    ``sample_ray`` then starts from the bounding sphere of the other shapes only (a room of
+    merged walls: flux ~1e-7 of the true one, or particles starting inside the room). The
+    radiosity prepass builds those rays around the geometry's own bounds
+    (:func:`mi_twopass.scene.emission.emitter_rays`, as rex's photons), so the cache is built
+    there too (until session 8 the integrator warned and rendered ``path``).
 
     **Media.** The estimator transports light between surfaces only: a scene with a
     participating medium fails at the prepass with a ValueError that names it (render it with

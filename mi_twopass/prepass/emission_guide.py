@@ -13,11 +13,12 @@ The remedy is Jensen's projection maps (Jensen 1996, "Global illumination using 
 in Peter & Pietrek (1998, "Importance driven construction of photon maps"): particles are sent
 where the *camera's* reads will meet them.
 
-1. **Cells.** Each emitter's primary sample space, the (u2, u3) ∈ [0,1)⁴ its ``sample_ray``
-   reads, is cut into cells over the dimensions the ray depends on (probed, :func:`cells`):
-   ``GRID_2D``² cells where one pair matters (a sun's disk position, a point light's
-   direction), ``GRID_4D``⁴ where both do (a sky's point and direction). An area emitter is
-   one cell: its share of the particles is what is guided.
+1. **Cells.** Each emitter's primary sample space, the (u2, u3) ∈ [0,1)⁴ from which
+   :func:`mi_twopass.scene.emission.emitter_rays` builds its rays, is cut into cells over the
+   dimensions the ray depends on (probed, :func:`cells`): ``GRID_2D``² cells where one pair
+   matters (a sun's disk position, a point light's direction), ``GRID_4D``⁴ where both do (a
+   sky's direction and disk position). An area emitter is one cell: its share of the
+   particles is what is guided.
 2. **Importance** W per receiver (:func:`camera_importance`): camera paths of
    ``CAMERA_BOUNCES`` BSDF-sampled bounces count the receivers they hit — where the far
    gather, its continuation and the spike lists will read the solution.
@@ -54,6 +55,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..scene.emission import emitter_kinds, emitter_rays
+
 #: cells per dimension where one (u2 or u3) pair of an emitter's samples moves its rays
 GRID_2D = 32
 #: cells per dimension where both pairs do
@@ -70,23 +73,16 @@ CAMERA_LANES = 1 << 16
 CAMERA_BOUNCES = 3
 
 
-def is_area_emitter(emitter) -> bool:
-    """An emitter the prepass samples on its surface (``sample_position`` + a cosine
-    direction) rather than with ``sample_ray``: as in ``radiosity._sample_emission``."""
-    flags = emitter.flags()
-    return bool(flags & int(mi.EmitterFlags.Surface)) and \
-        not bool(flags & int(mi.EmitterFlags.DeltaDirection))
-
-
-def moving_dims(emitter, probes: int = 16) -> tuple[bool, bool]:
-    """Whether ``emitter.sample_ray``'s ray (origin, direction) moves with its spatial sample
-    u2 and with its direction sample u3: each is changed at ``probes`` random points with the
-    other held."""
+def moving_dims(scene, bounds, index: int, probes: int = 16) -> tuple[bool, bool]:
+    """Whether the rays :func:`mi_twopass.scene.emission.emitter_rays` builds for emitter
+    ``index`` (origin, direction) move with its first sample pair u2 and with its second u3:
+    each is changed at ``probes`` random points with the other held."""
     rng = np.random.default_rng(1)
     a, b, c = (mi.Point2f(*rng.random((2, probes)).astype(np.float32)) for _ in range(3))
+    em = mi.UInt32(np.full(probes, index, np.uint32))
 
     def ray(u2, u3):
-        r, _ = emitter.sample_ray(0.0, 0.5, u2, u3)
+        r, _ = emitter_rays(scene, bounds, em, u2, u3)
         return np.concatenate([np.broadcast_to(np.asarray(v), (3, probes))
                                for v in (r.o, r.d)])
 
@@ -118,16 +114,19 @@ class EmissionCells:
         return self.size.prod(axis=1)
 
 
-def cells(scene) -> EmissionCells:
-    """:class:`EmissionCells` of ``scene``'s emitters (module docstring, step 1)."""
+def cells(scene, bounds) -> EmissionCells:
+    """:class:`EmissionCells` of ``scene``'s emitters (module docstring, step 1); ``bounds``:
+    the geometry's (:func:`mi_twopass.scene.bounds.scene_bounds`), where infinite emitters'
+    rays start."""
     emitters = scene.emitters()
     n = len(emitters)
     select = np.broadcast_to(np.asarray(
         scene.pdf_emitter(mi.UInt32(np.arange(n, dtype=np.uint32))), np.float64).ravel(),
         (n,)) if n else np.zeros(0)
     em, lo, size, default, blocks = [], [], [], [], []
-    for i, e in enumerate(emitters):
-        moves = (False, False) if is_area_emitter(e) else moving_dims(e)
+    kinds = emitter_kinds(scene)
+    for i in range(n):
+        moves = (False, False) if kinds[i] == "surface" else moving_dims(scene, bounds, i)
         res = GRID_4D if all(moves) else GRID_2D
         axes = []
         for pair_moves in moves:
@@ -263,5 +262,5 @@ def camera_importance(scene, sensor, receivers, seed: int, lanes: int = CAMERA_L
 
 
 __all__ = ["EmissionCells", "EmissionGuide", "camera_importance", "cell_rms", "cells",
-           "fitted", "is_area_emitter", "moving_dims", "neighbour_max", "predicted_noise",
+           "fitted", "moving_dims", "neighbour_max", "predicted_noise",
            "uniform"]

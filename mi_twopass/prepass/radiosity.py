@@ -59,6 +59,8 @@ import numpy as np
 from .. import units
 from ..progress import progress as progress_bar
 from ..rays import spawn_ray
+from ..scene.bounds import scene_bounds
+from ..scene.emission import emitter_kinds, emitter_rays
 from ..scene.patches import Patches, build_patches
 from ..scenefile import load_scene
 from ..seeds import splitmix64
@@ -175,48 +177,35 @@ class RadiositySolution:
 # ----------------------------------------------------------------------------------------------
 
 
-def _sample_emission(scene, patches, rng, active, guide=None):
+def _sample_emission(scene, bounds, rng, active, guide=None):
     """Particles leaving the emitters: (ray origin, direction, flux weight, cell) for each
-    lane. The emitter and its (u2, u3) samples are Mitsuba's choice, or drawn from ``guide``
-    (:mod:`mi_twopass.prepass.emission_guide`; ``cell``: the guide's cell, else 0)."""
+    lane, built by :func:`mi_twopass.scene.emission.emitter_rays` (infinite emitters from a disk
+    around ``bounds``, the geometry's own bounds). The emitter and its (u2, u3) samples are
+    Mitsuba's choice, or drawn from ``guide`` (:mod:`mi_twopass.prepass.emission_guide`;
+    ``cell``: the guide's cell, else 0)."""
     u1 = rng.next_float32()
     u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
     u3 = mi.Point2f(rng.next_float32(), rng.next_float32())
     if guide is None:
-        index, sel_weight, u1 = scene.sample_emitter(u1, active)
+        index, sel_weight, _ = scene.sample_emitter(u1, active)
         cell = dr.zeros(mi.UInt32, dr.width(u1))
     else:
-        cell, index, sel_weight, u1, u2, u3 = guide.sample(u1, u2, u3, active)
-    emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), index, active)
-    flags = emitter.flags()
-    is_area = active & mi.has_flag(flags, mi.EmitterFlags.Surface) \
-        & ~mi.has_flag(flags, mi.EmitterFlags.DeltaDirection)
-    other = active & ~is_area
-
-    ray, weight = emitter.sample_ray(mi.Float(0.0), u1, u2, u3, other)
-
-    ps, _ = emitter.sample_position(mi.Float(0.0), u2, is_area)
-    si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
-    si.wi = mi.Vector3f(0.0, 0.0, 1.0)
-    Le = emitter.eval(si, is_area)
-    d_area = mi.Frame3f(ps.n).to_world(mi.warp.square_to_cosine_hemisphere(u3))
-    o_area = ps.p + ps.n * patches.ray_epsilon(ps.p)
-    w_area = Le * dr.pi * dr.select(ps.pdf > 0, dr.rcp(ps.pdf), 0.0)
-
-    o = dr.select(is_area, o_area, ray.o)
-    d = dr.select(is_area, d_area, ray.d)
-    w = dr.select(is_area, w_area, weight) * sel_weight
+        cell, index, sel_weight, _, u2, u3 = guide.sample(u1, u2, u3, active)
+    ray, weight = emitter_rays(scene, bounds, index, u2, u3, active)
+    w = weight * sel_weight
     w = dr.select(active & dr.all(dr.isfinite(w)), w, 0.0)
-    return o, d, mi.Color3f(w), cell
+    return ray.o, ray.d, mi.Color3f(w), cell
 
 
 def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None,
-                 guide=None, importance=None):
+                 guide=None, importance=None, bounds=None):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, element deposits (M+1, 3)
     or None, accounting dict, rays). ``guide``: where particles start
     (:mod:`mi_twopass.prepass.emission_guide`), else as Mitsuba samples emitter rays.
     ``importance``: per receiver (+1 sentinel), a weight; the accounting then holds each
-    particle's ``cell`` and ``score``, the importance-weighted mean flux of all its deposits."""
+    particle's ``cell`` and ``score``, the importance-weighted mean flux of all its deposits.
+    ``bounds``: :func:`mi_twopass.scene.bounds.scene_bounds` of ``scene`` (computed when
+    ``None``)."""
     N = patches.count
     M = elements.count if elements is not None else 0
     # seed, offset and scale are opaque: as literals they would make every seed (every fresh
@@ -224,7 +213,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     idx = dr.arange(mi.UInt64, n) + dr.opaque(mi.UInt64, first_index)
     rng = mi.PCG32(size=n, initstate=dr.opaque(mi.UInt64, splitmix64(seed)), initseq=idx)
     active = dr.full(mi.Bool, True, n)
-    o, d, flux, cell = _sample_emission(scene, patches, rng, active, guide)
+    if bounds is None:
+        bounds = scene_bounds(scene)
+    o, d, flux, cell = _sample_emission(scene, bounds, rng, active, guide)
     flux = flux * dr.opaque(mi.Float, 1.0 / n_total)
     lane = dr.arange(mi.UInt32, n)
     score = dr.zeros(mi.Float, n)
@@ -526,6 +517,7 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
     rays = 0
     traced = 0
     if len(scene.emitters()) > 0 and N >= 0:
+        bounds = scene_bounds(scene)
         with progress_bar(total=n_particles, desc="radiosity", unit="particle",
                           show=progress) as bar:
             for first in range(0, n_particles, batch_size):
@@ -533,7 +525,7 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
                 try:
                     deposits, deposits_e, result, batch_rays = _trace_batch(
                         scene, patches, n, first, seed, n_particles, max_bounces, elements,
-                        guide)
+                        guide, bounds=bounds)
                 except (RuntimeError, NotImplementedError) as exc:
                     names = ", ".join(sorted({e.class_name() for e in scene.emitters()}))
                     raise RuntimeError(
@@ -593,20 +585,21 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
     neighbours."""
     emitters = scene.emitters()
     if sensor is None or not emitters or \
-            all(emission_guide.is_area_emitter(e) for e in emitters):
+            all(kind == "surface" for kind in emitter_kinds(scene)):
         return None, 0, 0.0
     receivers = elements if elements is not None else patches
     W = emission_guide.camera_importance(scene, sensor, receivers, seed)
     if not W.sum() > 0:
         return None, 0, 0.0
-    cells = emission_guide.cells(scene)
+    bounds = scene_bounds(scene)
+    cells = emission_guide.cells(scene, bounds)
     cell_of, score, traced = [], [], 0
 
     def run(pilot_guide, n, stage):
         nonlocal traced
         _, _, result, _ = _trace_batch(scene, patches, n, 0, seed + _GUIDE_SEED + stage, n,
                                        DEFAULT_MAX_BOUNCES, elements, guide=pilot_guide,
-                                       importance=W)
+                                       importance=W, bounds=bounds)
         cell_of.append(result["cell"])
         # the common scale f·V_c: x the pilot's probability of the cell x its particle count
         score.append(result["score"] * pilot_guide.pmf[result["cell"]] * n)

@@ -80,6 +80,7 @@ from .. import units
 from ..progress import progress
 from ..rays import spawn_ray
 from ..scene.bounds import scene_bounds
+from ..scene.emission import emitter_rays
 from ..scene.lambertian import is_lambertian
 from ..seeds import hash31
 
@@ -495,57 +496,6 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
 # ---------------------------------------------------------------------------------------------
 # Light pass (§3.3.1, §4.1): emitters, light quadtree, pilot rays, photons
 # ---------------------------------------------------------------------------------------------
-def emitter_rays(scene, bounds, em, s2, s3, active=True):
-    """Photon rays ``(ray, weight)`` leaving the emitters ``em`` (indices into
-    ``scene.emitters()``) from the primary samples ``s2``, ``s3``, as Mitsuba's ``sample_ray``
-    samples them, built here where Mitsuba's would be wrong:
-
-    * surface (area) emitters: a point by ``sample_position`` (``s2``), a cosine-weighted
-      direction (``s3``), weight Le·π/pdf, the origin offset by :func:`mi_twopass.rays.spawn_ray` (Mitsuba's
-      absolute offset starts photons in the middle of a sub-millimetre scene);
-    * infinite emitters (constant, envmap, sunsky, directional, ...): a direction by
-      ``sample_direction`` (``s2``, weight L/pdf) and a point of the disk of radius R facing it
-      (``s3``), R the bounding sphere of :func:`scene_bounds`: weight L/pdf · πR². Mitsuba's own
-      infinite ``sample_ray`` starts on the sphere around ``scene.bbox()``, which misses the
-      rectangles Mitsuba merges into one mesh (its bbox is that of the other parts, or empty):
-      those photons started inside the scene, past its walls;
-    * others (point, spot, projector, ...): Mitsuba's ``sample_ray``."""
-    active = mi.Bool(active)
-    n = dr.width(em)
-    ep = dr.gather(mi.EmitterPtr, scene.emitters_dr(), em, active)
-    flags = ep.flags()
-    infinite = active & mi.has_flag(flags, mi.EmitterFlags.Infinite)
-    surface = active & ~infinite & mi.has_flag(flags, mi.EmitterFlags.Surface)
-    other = active & ~infinite & ~surface
-    ray, weight = ep.sample_ray(0.0, 0.5, s2, s3, other)
-    weight = dr.select(other, weight, 0.0)
-
-    # surface emitters
-    ps, pos_weight = ep.sample_position(0.0, s2, surface)
-    si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f, n))
-    local = mi.warp.square_to_cosine_hemisphere(s3)
-    si.wi = local
-    Le = ep.eval(si, surface)
-    d = si.to_world(local)
-    ok = surface & (ps.pdf > 0) & (local.z > 0)
-    ray = dr.select(surface, spawn_ray(si, d, float(bounds.radius)), ray)
-    weight = dr.select(surface, dr.select(ok, Le * pos_weight * math.pi, 0.0), weight)
-
-    # infinite emitters
-    center = mi.Point3f(*(float(c) for c in bounds.center))
-    radius = float(bounds.radius)
-    it = dr.zeros(mi.Interaction3f, n)
-    it.p = center
-    ds, w_dir = ep.sample_direction(it, s2, infinite)
-    frame = mi.Frame3f(ds.d)  # ds.d points from the scene towards the emitter
-    disk = mi.warp.square_to_uniform_disk_concentric(s3)
-    origin = center + radius * (ds.d + frame.to_world(mi.Vector3f(disk.x, disk.y, 0.0)))
-    ok = infinite & (ds.pdf > 0)
-    ray = dr.select(infinite, mi.Ray3f(origin, -ds.d), ray)
-    weight = dr.select(infinite, dr.select(ok, w_dir * (math.pi * radius * radius), 0.0), weight)
-    return ray, weight
-
-
 def probe_emitters(scene, seed, bounds, n_probe=256):
     """Power of every emitter (mean photon weight of :func:`emitter_rays`) and which 2-D
     sample the light quadtree adapts: 3 (``sample3``) where it changes the ray, else 2."""
@@ -1537,8 +1487,9 @@ class RexPrepass:
 def warn_short_bbox(scene, bounds):
     """Warn when ``scene.bbox()`` misses part of the geometry and an infinite emitter is present:
     Mitsuba's emitter sampling then ends shadow rays 2·R from the shading point (R the radius
-    around the short bbox), so they can pass walls: Mitsuba's ``path``, and the shadow rays of
-    rex's eye pass, leak light; ``mi.load_file(..., optimize=False)`` avoids the merge."""
+    around the short bbox), so they can pass walls: Mitsuba's ``path`` leaks light there (our
+    shadow rays go on to infinity, :func:`mi_twopass.rays.shadow_ray`), so compare with a
+    ``path`` render of the scene loaded with ``optimize=False``, which avoids the merge."""
     infinite = [e for e in scene.emitters()
                 if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)]
     if not infinite:
@@ -1551,8 +1502,9 @@ def warn_short_bbox(scene, bounds):
             and np.all(hi >= np.asarray(bounds.hi) - tol)):
         warnings.warn("scene.bbox() misses part of the geometry (Mitsuba merges rectangles that "
                       "share a BSDF into a mesh whose bbox leaves them out): infinite emitters' "
-                      "shadow rays can leak through walls in Mitsuba's path and rex's shadow "
-                      "rays; load the scene with optimize=False to avoid it", stacklevel=3)
+                      "shadow rays can leak through walls in Mitsuba's path (not in rex's); "
+                      "compare with path on the scene loaded with optimize=False",
+                      stacklevel=3)
 
 
 def scene_media(scene) -> list:

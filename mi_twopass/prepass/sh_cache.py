@@ -41,7 +41,6 @@ cares about in the view), not of the whole scene's bounding box.
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -51,7 +50,7 @@ import numpy as np
 
 from .. import sh
 from ..host_arrays import columns
-from ..scene.bounds import scene_bounds, scene_diagonal
+from ..scene.bounds import scene_diagonal
 from ..scene.patches import build_patches
 from ..seeds import hash31
 from ..tables import Tables
@@ -558,35 +557,6 @@ def check_no_media(scene):
                 "scene with 'volpath', or set ignore_media=true to ignore it as 'path' does")
 
 
-def infinite_emitters_unbounded(scene) -> str:
-    """Names of the infinite emitters (sky, sun, envmap) of ``scene`` when its bounding box
-    misses part of its shapes, else "". Their ``sample_ray`` (the radiosity prepass's
-    particles) starts on Mitsuba's bounding sphere of ``scene.bbox()``: a box that misses the
-    merged walls of a room (Mitsuba 3.9.1: a merged mesh reports an invalid bbox) gives their
-    light the flux of a far too small sphere, e.g. 3e-7 W instead of ~30 W."""
-    infinite = [e for e in scene.emitters()
-                if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)]
-    if not infinite:
-        return ""
-    bounds = scene_bounds(scene)
-    if bounds.empty:
-        return ""
-    box = scene.bbox()
-    lo, hi = np.asarray(bounds.lo), np.asarray(bounds.hi)
-    tol = 1e-4 * float(np.linalg.norm(hi - lo))
-    if box.valid() and np.all(np.asarray(box.min, dtype=np.float64).ravel() <= lo + tol) \
-            and np.all(np.asarray(box.max, dtype=np.float64).ravel() >= hi - tol):
-        return ""
-    return ", ".join(f"{e.class_name()} '{e.id()}'" for e in infinite)
-
-
-def _box_str(box) -> str:
-    if not box.valid():
-        return "invalid"
-    lo, hi = (np.asarray(v, dtype=np.float64).ravel().round(6).tolist() for v in (box.min, box.max))
-    return f"{lo} … {hi}"
-
-
 #: default alpha as a fraction of the bounding-box diagonal of the camera's shading points.
 #: window_interior 64² (diagonal 7.7 m), relMSE at 256 spp against path: 0.0037 at 0.02 and
 #: 0.03, 0.0052 at 0.05, 0.0075 at 0.1 (darker as alpha grows: the visibility assumption of
@@ -692,14 +662,7 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
         check_no_media(scene)
     scale = scene_diagonal(scene)
     lambertian = LambertianShapes(scene)
-    unbounded = infinite_emitters_unbounded(scene)
-    if unbounded:
-        warnings.warn(
-            f"radiance_cache: the scene's bounding box ({_box_str(scene.bbox())}) does not "
-            f"hold all its shapes (Mitsuba's merged meshes report none), so the "
-            f"radiosity prepass would shoot the light of {unbounded} from a wrong sphere; "
-            "the cache is not used, the image is path traced", stacklevel=3)
-    if settings.path_only or (unbounded and not settings.debug_view):
+    if settings.path_only:
         return CachePrepass(scale=scale, lambertian=lambertian)
     if sensor is None and len(scene.sensors()):
         sensor = scene.sensors()[0]

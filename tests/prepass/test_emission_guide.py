@@ -18,6 +18,7 @@ import mitsuba as mi
 
 from mi_twopass.prepass import emission_guide as G
 from mi_twopass.prepass import radiosity as R
+from mi_twopass.scene.bounds import scene_bounds
 
 T = mi.ScalarTransform4f
 IRRADIANCE = 5.0
@@ -69,18 +70,19 @@ def floor_flux(pre):
 SETTINGS = R.RadiositySettings(max_patches=64, elements_per_patch=1)
 
 
-def test_moving_dims_tell_a_suns_disk_from_a_skys_sphere():
+def test_moving_dims_tell_a_suns_disk_from_a_skys_directions():
     scene = window_scene(sun())
-    assert G.moving_dims(scene.emitters()[0]) == (True, False)
+    # a sun: one direction (u2 unused), a point of the disk facing it (u3)
+    assert G.moving_dims(scene, scene_bounds(scene), 0) == (False, True)
     sky = mi.load_dict({"type": "scene", "floor": slab(0, 0, 0, 1, 1),
                         "sky": {"type": "constant"}})
-    assert G.moving_dims(sky.emitters()[0]) == (True, True)
+    assert G.moving_dims(sky, scene_bounds(sky), 0) == (True, True)
 
 
 def test_cells_cover_each_emitters_sample_space_once():
     scene = mi.load_dict({"type": "scene", "sun": sun(), "sky": {"type": "constant"},
                           "lamp": {**slab(0, 0, 1, 0.2, 0.2), "emitter": {"type": "area"}}})
-    cells = G.cells(scene)
+    cells = G.cells(scene, scene_bounds(scene))
     per_emitter = np.bincount(cells.emitter, minlength=3)
     assert sorted(per_emitter.tolist()) == sorted([1, G.GRID_2D ** 2, G.GRID_4D ** 4])
     # volumes tile [0,1)^4 per emitter; Mitsuba's own choice sums to 1
@@ -91,7 +93,7 @@ def test_cells_cover_each_emitters_sample_space_once():
 
 def test_neighbours_share_and_every_cell_keeps_a_defensive_share():
     scene = window_scene(sun())
-    cells = G.cells(scene)
+    cells = G.cells(scene, scene_bounds(scene))
     rms = np.zeros(cells.count)
     rms[5 * G.GRID_2D + 7] = 1.0
     near = G.neighbour_max(cells, rms).reshape(G.GRID_2D, G.GRID_2D)
@@ -125,7 +127,7 @@ def test_a_sun_through_a_hole_is_unbiased_and_far_less_noisy_when_guided():
     # unguided: a binomial count of the particles that pass the hole
     plain = R.build(scene, SETTINGS, seed=0, progress=False)
     assert plain.guide_cells == 0
-    radius = scene.bbox().bounding_sphere().radius
+    radius = scene_bounds(scene).radius
     p_hit = 1.0 / (math.pi * radius ** 2)
     n = plain.solution.particles
     plain_rel_sd = math.sqrt((1 - p_hit) / (n * p_hit))
