@@ -34,3 +34,17 @@ def spawn_ray_to(si, target, scale):
     d = target - o
     dist = dr.norm(d)
     return mi.Ray3f(o, d / dist, dist * (1.0 - mi.math.ShadowEpsilon), si.time, si.wavelengths)
+
+
+def shadow_ray(si, ds, scale):
+    """The shadow ray of an emitter sample ``ds`` at ``si``: :func:`spawn_ray_to` its point,
+    and on to infinity for an infinite emitter (sky, sun, envmap). Mitsuba places that point 2R
+    away, R the radius of ``scene.bbox()``, and Mitsuba 3.9 leaves the rectangles it merges into
+    one mesh out of that box: a shadow ray ending there passed a room's walls, and a sky lit
+    the inside of a closed room (Mitsuba's ``path`` has that leak; tests/hard_scenes.py
+    ``sky_room``)."""
+    ray = spawn_ray_to(si, ds.p, scale)
+    infinite = mi.has_flag(ds.emitter.flags(), mi.EmitterFlags.Infinite)
+    ray.maxt = dr.select(infinite, dr.inf, ray.maxt)
+    return ray
+

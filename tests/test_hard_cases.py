@@ -125,8 +125,10 @@ def _deterministic_kernels():
 
 
 @functools.lru_cache(maxsize=4)
-def scene(name):
-    return hs.build(name)
+def scene(name, reference=False):
+    """Scene ``name``; for the reference unmerged where :data:`hard_scenes.UNMERGED_REFERENCE`
+    says so."""
+    return hs.build(name, optimize=not (reference and name in hs.UNMERGED_REFERENCE))
 
 
 class Means:
@@ -151,9 +153,9 @@ class Means:
         return max(se_means, se_blocks)
 
 
-def render_means(name, props, spp, seeds):
+def render_means(name, props, spp, seeds, reference=False):
     """Independent renders (a fresh integrator per seed); every image must be finite."""
-    sc = scene(name)
+    sc = scene(name, reference)
     images = []
     for s in seeds:
         img = np.asarray(mi.render(sc, integrator=mi.load_dict(dict(props)), spp=spp, seed=s))
@@ -170,7 +172,7 @@ def path_reference(name, max_depth=-1):
     """K reference renders' image means (``path``, or :data:`REFERENCE`'s integrator), shared
     by the four integrators' cells of a scene."""
     return render_means(name, {"type": REFERENCE.get(name, "path"), "max_depth": max_depth},
-                        REF_SPP, range(1000, 1000 + K))
+                        REF_SPP, range(1000, 1000 + K), reference=True)
 
 
 def method_means(name, integrator):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..rays import spawn_ray, spawn_ray_to
+from ..rays import shadow_ray, spawn_ray
 
 
 def path_start(ray, active, lights):
@@ -59,10 +59,10 @@ def emitter_sample_mis(scene, si, bsdf, ctx, u, active, scale=1.0):
     ``(f·Le·w_MIS/p, cast)``: the BSDF-weighted contribution (β not included) and the lanes that
     traced a shadow ray (occluded ones included: the ray statistics count them). MIS weight
     p_em² / (p_em² + p_bsdf²), 1 for delta emitters. The shadow ray's offset is relative to
-    ``scale`` (:func:`mi_twopass.rays.spawn_ray_to`; 1: Mitsuba's own)."""
+    ``scale`` (:func:`mi_twopass.rays.shadow_ray`; 1: Mitsuba's own)."""
     ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
     cast = active & (ds.pdf != 0.0) & dr.any(em_weight != 0.0)
-    visible = cast & ~scene.ray_test(spawn_ray_to(si, ds.p, scale), cast)
+    visible = cast & ~scene.ray_test(shadow_ray(si, ds, scale), cast)
     bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), visible)
     w = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
     return dr.select(visible, w * bsdf_val * em_weight, 0.0), cast

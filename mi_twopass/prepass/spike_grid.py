@@ -1072,6 +1072,10 @@ def _trace_visibility(scene, sources, patches, pts, pt_off, pair_list, pair_src,
     d = target - o
     dist = dr.norm(d)
     maxt = dr.select(is_em, dist * (1.0 - 1e-4), dist - dr.maximum(margin, 1e-4 * dist))
+    # an infinite emitter's point lies 2R from the scene.bbox() centre, and that box can miss
+    # merged walls (mi_twopass.rays.shadow_ray): its rays go on to infinity
+    maxt = dr.select(is_em & mi.has_flag(emitter.flags(), mi.EmitterFlags.Infinite), dr.inf,
+                     maxt)
     ok = (ok_em | ok_vl) & (dist > 0) & (maxt > 0) & dr.isfinite(dist)
     ray = mi.Ray3f(o, d / dr.maximum(dist, _TINY))
     ray.maxt = dr.maximum(maxt, 0.0)
