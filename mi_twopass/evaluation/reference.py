@@ -2,7 +2,9 @@
 
 The cache key is a SHA-256 of the scene file's bytes, the bytes of every file it references
 (``filename="..."``), the parameters, the film size override ``film_res`` (when given), spp, seed,
-variant and Mitsuba version; the image lives in
+variant and Mitsuba version (and a mark where the scene is rendered unmerged: a sky in a room
+of rectangles Mitsuba merges, :func:`mi_twopass.scene.bounds.infinite_light_leaks`, where
+Mitsuba's ``path`` would let the sky through the walls); the image lives in
 ``<cache_dir>/<key>.exr`` beside a JSON of what made it. The default cache directory is
 ``.cache/references`` under the current directory, or ``$MI_TWOPASS_CACHE``.
 """
@@ -19,6 +21,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..progress import progress
+from ..scene.bounds import infinite_light_leaks
 from ..scenefile import load_scene
 from .images import read_exr, write_exr
 
@@ -85,11 +88,16 @@ def reference_image(scene_path, params: dict | None = None, spp: int = DEFAULT_R
     miss."""
     params = dict(params or {})
     cache_dir = cache_dir or default_cache_dir()
-    key = reference_key(scene_path, params, spp, seed, film_res)
+    scene = load_scene(scene_path, film_res=film_res, **params)
+    # Mitsuba's path lets a sky through merged walls (scene.bounds.infinite_light_leaks):
+    # such a scene's reference is rendered unmerged (its own cache key)
+    unmerged = infinite_light_leaks(scene)
+    key = reference_key(scene_path, params, spp, seed, film_res) + ("u" if unmerged else "")
     exr = os.path.join(cache_dir, key + ".exr")
     if os.path.isfile(exr):
         return read_exr(exr)
-    scene = load_scene(scene_path, film_res=film_res, **params)
+    if unmerged:
+        scene = load_scene(scene_path, film_res=film_res, optimize=False, **params)
     t0 = time.perf_counter()
     image = render_path(scene, spp, seed)
     seconds = time.perf_counter() - t0
@@ -103,7 +111,7 @@ def reference_image(scene_path, params: dict | None = None, spp: int = DEFAULT_R
     os.replace(tmp, exr)  # never leave a half-written reference behind
     with open(os.path.join(cache_dir, key + ".json"), "w") as f:
         json.dump({"scene": os.path.abspath(scene_path), "params": params, "film_res": film_res,
-                   "spp": spp,
+                   "spp": spp, "unmerged": unmerged,
                    "seed": seed, "variant": mi.variant(), "mitsuba": mi.__version__,
                    "seconds": seconds}, f, indent=1, default=str)
     dr.sync_thread()

@@ -79,7 +79,7 @@ import numpy as np
 from .. import units
 from ..progress import progress
 from ..rays import spawn_ray
-from ..scene.bounds import scene_bounds
+from ..scene.bounds import infinite_light_leaks, scene_bounds
 from ..scene.emission import emitter_rays
 from ..scene.lambertian import is_lambertian
 from ..seeds import hash31
@@ -1485,21 +1485,12 @@ class RexPrepass:
 
 
 def warn_short_bbox(scene, bounds):
-    """Warn when ``scene.bbox()`` misses part of the geometry and an infinite emitter is present:
-    Mitsuba's emitter sampling then ends shadow rays 2·R from the shading point (R the radius
-    around the short bbox), so they can pass walls: Mitsuba's ``path`` leaks light there (our
-    shadow rays go on to infinity, :func:`mi_twopass.rays.shadow_ray`), so compare with a
-    ``path`` render of the scene loaded with ``optimize=False``, which avoids the merge."""
-    infinite = [e for e in scene.emitters()
-                if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)]
-    if not infinite:
-        return
-    bbox = scene.bbox()
-    lo = np.asarray(bbox.min, np.float64).ravel()[:3]
-    hi = np.asarray(bbox.max, np.float64).ravel()[:3]
-    tol = 1e-4 * bounds.diagonal
-    if not (np.all(lo <= np.asarray(bounds.lo) + tol)
-            and np.all(hi >= np.asarray(bounds.hi) - tol)):
+    """Warn when ``scene.bbox()`` misses part of the geometry and an infinite emitter is present
+    (:func:`mi_twopass.scene.bounds.infinite_light_leaks`): Mitsuba's ``path`` leaks light
+    there (our shadow rays go on to infinity, :func:`mi_twopass.rays.shadow_ray`), so compare
+    with a ``path`` render of the scene loaded with ``optimize=False``, which avoids the merge
+    (``python -m mi_twopass check`` does)."""
+    if infinite_light_leaks(scene, bounds):
         warnings.warn("scene.bbox() misses part of the geometry (Mitsuba merges rectangles that "
                       "share a BSDF into a mesh whose bbox leaves them out): infinite emitters' "
                       "shadow rays can leak through walls in Mitsuba's path (not in rex's); "

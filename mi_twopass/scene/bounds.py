@@ -59,6 +59,30 @@ def scene_bounds(scene) -> SceneBounds:
     return SceneBounds(tuple(lo), tuple(hi))
 
 
+def infinite_light_leaks(scene, bounds: SceneBounds | None = None) -> bool:
+    """``scene`` has an infinite emitter (sky, sun, envmap) and ``scene.bbox()`` misses part of
+    its geometry (Mitsuba 3.9 leaves the rectangles it merges into one mesh out of it): then
+    Mitsuba's emitter sampling ends shadow rays 2R from the shading point, R the radius around
+    that short box, and they pass walls — Mitsuba's ``path`` lets the sky into closed rooms
+    (:func:`mi_twopass.rays.shadow_ray` is ours). Loading the scene with ``optimize=False``
+    avoids the merge."""
+    import mitsuba as mi
+
+    if not any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) for e in scene.emitters()):
+        return False
+    bounds = bounds if bounds is not None else scene_bounds(scene)
+    if bounds.empty:
+        return False
+    box = scene.bbox()
+    if not box.valid():
+        return True
+    lo = np.asarray(box.min, np.float64).ravel()[:3]
+    hi = np.asarray(box.max, np.float64).ravel()[:3]
+    tol = 1e-4 * bounds.diagonal
+    return not (np.all(lo <= np.asarray(bounds.lo) + tol)
+                and np.all(hi >= np.asarray(bounds.hi) - tol))
+
+
 def scene_diagonal(scene) -> float:
     """The diagonal of :func:`scene_bounds` (1 for an empty scene)."""
     return scene_bounds(scene).diagonal

@@ -1,4 +1,5 @@
 """mi_twopass.evaluation.check (the ``check`` report) and scenefile.load_scene's film_res."""
+import json
 import os
 
 import mitsuba as mi
@@ -6,6 +7,7 @@ import numpy as np
 import pytest
 
 from mi_twopass.evaluation import check, reference
+from mi_twopass.scene.bounds import infinite_light_leaks
 from mi_twopass.scenefile import SceneFileError, load_scene
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -124,3 +126,40 @@ def test_reference_key_includes_film_res(tiny_scene_file, ref_cache):
     img = reference.reference_image(tiny_scene_file, {}, spp=4, film_res=6)
     assert img.shape == (6, 6, 3)
     assert reference.reference_image(tiny_scene_file, {}, spp=4, film_res=4).shape == (4, 4, 3)
+
+
+SKY_ROOM = """<scene version="3.0.0">
+  <sensor type="perspective">
+    <float name="fov" value="70"/>
+    <transform name="to_world"><lookat origin="0, 0.2, 0.9" target="0, -0.3, -1" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+  </sensor>
+  <bsdf type="diffuse" id="wall"/>
+  <emitter type="constant"/>
+  <shape type="rectangle"><ref id="wall"/><transform name="to_world"><rotate x="1" angle="-90"/><translate y="-1"/></transform></shape>
+  <shape type="rectangle"><ref id="wall"/><transform name="to_world"><rotate x="1" angle="90"/><translate y="1"/></transform></shape>
+  <shape type="rectangle"><ref id="wall"/><transform name="to_world"><translate z="-1"/></transform></shape>
+  <shape type="rectangle"><ref id="wall"/><transform name="to_world"><rotate y="1" angle="90"/><translate x="-1"/></transform></shape>
+  <shape type="rectangle"><ref id="wall"/><transform name="to_world"><rotate y="1" angle="-90"/><translate x="1"/></transform></shape>
+  <shape type="rectangle"><ref id="wall"/><transform name="to_world"><scale x="1" y="0.65"/><rotate y="1" angle="180"/><translate y="-0.35" z="1"/></transform></shape>
+  <shape type="rectangle"><ref id="wall"/><transform name="to_world"><scale x="1" y="0.15"/><rotate y="1" angle="180"/><translate y="0.85" z="1"/></transform></shape>
+  <shape type="sphere"><point name="center" x="0.3" y="-0.65" z="-0.2"/><float name="radius" value="0.35"/><ref id="wall"/></shape>
+</scene>
+"""
+
+
+def test_a_sky_in_a_room_of_merged_walls_gets_an_unmerged_reference(tmp_path, ref_cache):
+    """Mitsuba merges the room's rectangles into a mesh scene.bbox() leaves out, and its path
+    lets the sky through the walls there (shadow rays end 2R from the shading point): the
+    reference is rendered on the scene loaded with optimize=False, under its own key."""
+    p = tmp_path / "sky_room.xml"
+    p.write_text(SKY_ROOM)
+    merged = load_scene(str(p))
+    assert infinite_light_leaks(merged)
+    img = reference.reference_image(str(p), {}, spp=64)
+    unmerged = reference.render_path(load_scene(str(p), optimize=False), 64)
+    leaky = reference.render_path(merged, 64)
+    assert np.array_equal(img, unmerged)
+    assert leaky.mean() > 1.2 * unmerged.mean()  # the leak the reference avoids
+    meta = [json.loads(f.read_text()) for f in ref_cache.glob("*.json")]
+    assert [m["unmerged"] for m in meta] == [True]
