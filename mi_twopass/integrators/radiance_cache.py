@@ -274,7 +274,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     def prepass(self, scene, seed):
         """Shading points, coarse solution, SH far field, near field
         (:func:`mi_twopass.prepass.sh_cache.build`)."""
-        return build_cache(scene, self.cache_settings, seed, sensor=self.prepass_sensor)
+        return build_cache(scene, self.cache_settings, seed, sensor=self.prepass_sensor,
+                           memo=self.radiosity_memo)
 
     def prepass_stats(self, s):
         lists = {}

@@ -122,7 +122,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
     def prepass(self, scene, seed):
         """GSII steps 1–2 (:func:`mi_twopass.prepass.radiosity.build`)."""
         return build_radiosity(scene, self.radiosity_settings, seed,
-                               sensor=self.prepass_sensor)
+                               sensor=self.prepass_sensor, memo=self.radiosity_memo)
 
     def prepass_stats(self, pre):
         st = pre.stats

@@ -295,7 +295,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         """GSII steps 1–2 (patches, radiosity), then §3.3 step 3: sources and spike lists
         (:func:`mi_twopass.prepass.spike_grid.build`)."""
         return build_spike(scene, self.spike_settings(scene), self.radiosity, seed,
-                           sensor=self.prepass_sensor)
+                           sensor=self.prepass_sensor, memo=self.radiosity_memo)
 
     def prepass_stats(self, pre):
         st = dict(pre.stats)

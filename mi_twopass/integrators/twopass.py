@@ -12,6 +12,7 @@ import mitsuba as mi
 from ..compose import cost
 from ..compose.choose import choose
 from ..compose.pilot import PilotSettings
+from ..prepass.radiosity import SolveMemo
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .component_path import ComponentPathIntegrator
 from .pathtrace import first_nondelta_hit
@@ -120,6 +121,8 @@ class TwoPassChooser(TwoPassIntegrator):
         self.pilot_budget = read_float(props, "pilot_budget", cost.PILOT_BUDGET, minimum=0.0)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self._candidates = {}  # plugin name+props -> integrator, kept so prepasses are reused
+        # radiosity solves the candidates share within one prepass (radiosity.build's memo)
+        self._radiosity_memo = SolveMemo()
         self._render_spp = 0
         #: samples per pixel of the whole image when a caller renders it in several passes
         #: (``python -m mi_twopass render`` does): the choice is made for the whole, not a pass
@@ -148,13 +151,21 @@ class TwoPassChooser(TwoPassIntegrator):
                 extra = {"photons": int(photons)} if photons > 0 else {}
                 self._candidates[key] = mi.load_dict(
                     {"type": c.plugin, **self._common_props(), **dict(c.props), **extra})
+                self._candidates[key].radiosity_memo = self._radiosity_memo
         return self._candidates[key]
 
     # -- prepass: pilot, then the structures that pay ---------------------------------------
     def prepass(self, scene, seed):
-        """The pilot and the structures that may pay: :func:`mi_twopass.compose.choose.choose`."""
-        return choose(scene, self.prepass_sensor, seed, self._render_spp, self.allowed,
-                      self.candidate, self.pilot_settings, self.pilot_budget, self.max_depth)
+        """The pilot and the structures that may pay: :func:`mi_twopass.compose.choose.choose`.
+        The candidates share their radiosity solves within it (one solve where spike_gather,
+        radiosity_gather and radiance_cache ask for the same budget)."""
+        self._radiosity_memo.clear()
+        try:
+            return choose(scene, self.prepass_sensor, seed, self._render_spp, self.allowed,
+                          self.candidate, self.pilot_settings, self.pilot_budget,
+                          self.max_depth)
+        finally:
+            self._radiosity_memo.clear()  # the chosen candidate keeps its own structure
 
     def prepass_stats(self, choice):
         d = choice.decision

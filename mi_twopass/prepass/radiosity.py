@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -722,6 +722,8 @@ class RadiosityPrepass:
     guide_particles: int = 0
     #: the relative standard deviation of the camera-weighted flux the pilot predicts
     flux_noise: float = 0.0
+    #: taken from a memo another prepass of the same scene and camera filled (:func:`build`)
+    reused: bool = False
 
     @property
     def patches(self):
@@ -749,14 +751,36 @@ class RadiosityPrepass:
                 "guide_pilot_particles": self.guide_particles,
                 "radiosity_particles": int(sol.particles),
                 "predicted_flux_noise": self.flux_noise,
+                "radiosity_reused": self.reused,
                 # patches / elements cut by geometry: traced on, not read (light-leak guard)
                 "split_patches": int(np.sum(sol.patches.is_split)),
                 "split_elements": int(np.sum(sol.elements.is_split))
                 if sol.elements is not None else 0}
 
 
+class SolveMemo:
+    """Radiosity solves that prepasses of one scene and camera share (``twopass``'s candidates,
+    :func:`build`). A plain class, not a dict: Dr.Jit traverses the dicts and dataclasses an
+    integrator holds when it records a loop, and took the solves' tables for loop state."""
+
+    def __init__(self):
+        self._solves = {}
+
+    def get(self, key):
+        return self._solves.get(key)
+
+    def put(self, key, prepass) -> None:
+        self._solves[key] = prepass
+
+    def clear(self) -> None:
+        self._solves.clear()
+
+    def __len__(self) -> int:
+        return len(self._solves)
+
+
 def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
-          sensor=None) -> RadiosityPrepass:
+          sensor=None, memo: SolveMemo | None = None) -> RadiosityPrepass:
     """The radiosity prepass shared by radiosity_gather, spike_gather and radiance_cache (GSII
     steps 1–2, Zimmerman & Shirley §2.5 / §3.3 step 2): patches of at most ``max_patches``,
     receiving elements, max(``min_particles``, ``particles_per_patch`` × patches) particles
@@ -766,8 +790,15 @@ def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
     ``prepass_scene`` it all runs on that simplified scene. ``progress``: a bool (bars on the
     solve), as :func:`solve_radiosity`'s. ``sensor``: the camera whose reads the particles of
     emitters other than area lights are guided to (:func:`guide_emission`); ``None``: not
-    guided."""
+    guided. ``memo``: a :class:`SolveMemo` that prepasses of one scene and camera share
+    (``twopass``'s candidates): a solve with the same budget and seed is taken from it, and
+    only the virtual luminaires (the one setting the solve does not read) are made anew."""
     t0 = time.perf_counter()
+    key = (replace(settings, vl_threshold=math.inf), int(seed), id(sensor))
+    done = memo.get(key) if memo is not None else None
+    if done is not None:
+        return replace(done, virtual=VirtualLuminaires(done.solution, settings.vl_threshold),
+                       seconds=time.perf_counter() - t0, reused=True)
     simplified = bool(settings.prepass_scene)
     target = load_scene(settings.prepass_scene) if simplified else scene
     patches = build_patches(target, max_patches=settings.max_patches, seed=seed)
@@ -779,8 +810,11 @@ def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
     solution = solve_radiosity(target, patches, n_particles=n_particles, seed=seed,
                                elements=elements, progress=bool(progress), guide=guide)
     virtual = VirtualLuminaires(solution, settings.vl_threshold)
-    return RadiosityPrepass(scene=target, solution=solution, virtual=virtual,
-                            seconds=time.perf_counter() - t0, simplified=simplified,
-                            guide_cells=guide.cells.count if guide is not None else 0,
-                            guide_particles=pilot,
-                            flux_noise=noise / math.sqrt(n_particles) if guide else 0.0)
+    pre = RadiosityPrepass(scene=target, solution=solution, virtual=virtual,
+                           seconds=time.perf_counter() - t0, simplified=simplified,
+                           guide_cells=guide.cells.count if guide is not None else 0,
+                           guide_particles=pilot,
+                           flux_noise=noise / math.sqrt(n_particles) if guide else 0.0)
+    if memo is not None:
+        memo.put(key, pre)
+    return pre

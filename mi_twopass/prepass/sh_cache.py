@@ -633,18 +633,19 @@ def cache_alpha(scene, settings: CacheSettings, points=None) -> float:
 
 
 def build(scene, settings: CacheSettings, seed: int, progress: bool = True,
-          sensor=None) -> CachePrepass:
+          sensor=None, memo=None) -> CachePrepass:
     """Shading points, coarse solution (radiosity), SH far field (§4.1), near-field BVH
     (§7). Only Lambertian surfaces carry radiosity into the cache: the shading points are the
     camera's first Lambertian hits, and the SH gather rays and the near-field triangles read 0
     on every other surface (the render traces paths there). ``sensor``: the camera whose
     shading points the cache is built for (default: the scene's first); ``progress``: bars on
-    the radiosity solve and the spike lists' visibility rounds (on a terminal).
+    the radiosity solve and the spike lists' visibility rounds (on a terminal); ``memo``:
+    radiosity solves shared with other prepasses (:func:`mi_twopass.prepass.radiosity.build`).
 
     With ``settings.spike``, spike lists of the emitters for the direct light (Zimmerman &
     Shirley §4, :func:`~mi_twopass.prepass.spike_grid.build_spike_prepass` on the coarse
     solution, no virtual luminaires: reflected light is the cache's)."""
-    pre = _build_cache(scene, settings, seed, sensor, progress)
+    pre = _build_cache(scene, settings, seed, sensor, progress, memo)
     if settings.spike is not None and len(scene.emitters()) > 1:
         sp = settings.spike
         pre.spike = build_spike_prepass(scene, sp, solution=pre.solution,
@@ -656,7 +657,7 @@ def build(scene, settings: CacheSettings, seed: int, progress: bool = True,
 
 
 def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
-                 progress: bool = True) -> CachePrepass:
+                 progress: bool = True, memo=None) -> CachePrepass:
     """:func:`build` without the spike lists."""
     if not settings.ignore_media:
         check_no_media(scene)
@@ -670,7 +671,7 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
         if sensor is not None else None
     alpha = cache_alpha(scene, settings, None if points is None else points[0])
     rad = None if settings.fake_gi else build_radiosity(scene, settings.radiosity, seed, progress,
-                                                        sensor=sensor)
+                                                        sensor=sensor, memo=memo)
     patches = rad.patches if rad is not None else \
         build_patches(scene, max_patches=settings.radiosity.max_patches, seed=seed)
     # a near triangle sends R_t only from a cached patch (as cached_surface at render time)

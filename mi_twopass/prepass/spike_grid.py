@@ -1323,15 +1323,16 @@ __all__ = ["INVALID", "Sources", "SpikeGrid", "SpikeSettings", "SpikePrepass", "
 
 
 def build(scene, settings: SpikeSettings, radiosity: RadiositySettings, seed: int,
-          progress: bool = True, sensor=None) -> SpikePrepass:
+          progress: bool = True, sensor=None, memo=None) -> SpikePrepass:
     """The whole spike_gather prepass (Zimmerman & Shirley §3.3 steps 1–3): the shared
     radiosity prepass (:func:`mi_twopass.prepass.radiosity.build`; its own virtual luminaires
     off: the spike sources reclassify patches by ``settings.vl_threshold``), then the sources
     and the spike lists. ``progress``: bars on the solve and the visibility rounds;
-    ``sensor``: the camera that guides the solve's emission (``radiosity.build``)."""
+    ``sensor``: the camera that guides the solve's emission and ``memo`` solves shared with
+    other prepasses (``radiosity.build``)."""
     t0 = time.perf_counter()
     rad = build_radiosity(scene, replace(radiosity, vl_threshold=math.inf), seed, progress,
-                          sensor=sensor)
+                          sensor=sensor, memo=memo)
     pre = build_spike_prepass(scene, settings, solution=rad.solution,
                               vl_threshold=settings.vl_threshold,
                               e_high_rel=settings.e_high_rel, e_low_rel=settings.e_low_rel,

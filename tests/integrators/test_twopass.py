@@ -238,3 +238,27 @@ def test_a_render_in_passes_is_chosen_for_its_whole_spp(tiny_scene_file, tmp_pat
                              out=lambda *_: None)
     assert res["passes"] == 16
     assert "at 64 spp" in res["stats"]["twopass_reason"]
+
+
+def test_candidates_share_one_radiosity_solve():
+    """The two spike_gather rows (spike lists with the far gather, and with paths) ask for the
+    same radiosity budget: within one twopass prepass the first solves, the second takes its
+    solve (radiosity.build's memo); radiosity_gather, whose budget differs, solves its own; the
+    memo is emptied once the choice is made."""
+    d = hs.box()
+    d["light2"] = {"type": "rectangle", "emitter": {"type": "area",
+                                                    "radiance": hs.rgb(4.0)},
+                   "to_world": mi.ScalarTransform4f().translate([-0.6, 0.99, -0.5])
+                   .rotate([1, 0, 0], 90).scale(0.15)}
+    scene = mi.load_dict(d)
+    tp = mi.load_dict({"type": "twopass", **TRY_ALL})
+    render(scene, tp, spp=16)
+    spikes = [c for c in cost.COMPOSITIONS if c.plugin == "spike_gather"]
+    gather = next(c for c in cost.COMPOSITIONS if c.plugin == "radiosity_gather")
+    assert all(c.name in tp.stats["twopass_candidates"] for c in spikes + [gather]), tp.stats
+    a, b = (tp.candidate(c) for c in spikes)
+    assert a.structure.solution is b.structure.solution
+    assert sorted([a._prepass_stats["radiosity_reused"], b._prepass_stats["radiosity_reused"]]) \
+        == [False, True]
+    assert tp.candidate(gather).structure.solution is not a.structure.solution
+    assert len(tp._radiosity_memo) == 0
