@@ -25,7 +25,7 @@ where the *camera's* reads will meet them.
 3. **Pilot**, in two stages: ``PILOT_PER_CELL`` particles per cell on average, the cells
    chosen uniformly; then ``PILOT_FOCUS`` per cell on the cells that scored and their
    neighbours (a lit window is a few per cent of a sun's disk: a uniform pilot of a few
-   particles per cell misses the cells it only partly covers). A particle's score is the
+   particles per cell misses the cells it only partly covers; :func:`focus_cells`). A particle's score is the
    W-weighted flux of all its deposits, brought to a common scale (× the pilot's
    probability of its cell × its particle count: the contribution density f times the cell
    volume V_c).
@@ -45,7 +45,9 @@ Mitsuba's emission, 0.24 % with the best guide a cell grid allows, 1.4 % with a 
 pilot of 8 per cell, 0.7 % with the neighbours' share and 0.4 % with the second stage.
 
 Only scenes with an emitter that is not an area light get a guide (its cost: a camera pass of
-``CAMERA_LANES`` paths and the pilot); area lights alone are sampled as before.
+``CAMERA_LANES`` paths and the pilot); area lights alone are sampled as before. A guide the
+pilot predicts to gain less than ``MIN_GAIN`` in variance is dropped (many_lights' four point
+lights in an open street: the pilot's cost doubled the radiosity prepass for nothing).
 """
 from __future__ import annotations
 
@@ -55,7 +57,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..scene.emission import emitter_kinds, emitter_rays
+from ..scene.emission import emitter_kinds
 
 #: cells per dimension where one (u2 or u3) pair of an emitter's samples moves its rays
 GRID_2D = 32
@@ -66,6 +68,9 @@ PILOT_PER_CELL = 4
 PILOT_FOCUS = 32
 #: γ: a cell's share is at least this fraction of its most important neighbour's
 NEIGHBOURS = 0.25
+#: a guide is used only where the pilot predicts it divides the camera-weighted flux's
+#: variance by this much (else Mitsuba's emission: the pilot's cost bought nothing)
+MIN_GAIN = 2.0
 #: share of the particles drawn as Mitsuba would (emitter selection × uniform cells)
 DEFENSIVE = 0.25
 #: camera paths of the importance pass, and the bounces each follows
@@ -73,16 +78,25 @@ CAMERA_LANES = 1 << 16
 CAMERA_BOUNCES = 3
 
 
-def moving_dims(scene, bounds, index: int, probes: int = 16) -> tuple[bool, bool]:
+def moving_dims(scene, index: int, probes: int = 16) -> tuple[bool, bool]:
     """Whether the rays :func:`mi_twopass.scene.emission.emitter_rays` builds for emitter
-    ``index`` (origin, direction) move with its first sample pair u2 and with its second u3:
-    each is changed at ``probes`` random points with the other held."""
+    ``index`` move with its first sample pair u2 and with its second u3. An infinite emitter's
+    u2 picks a direction (fixed for a delta direction: a sun) and u3 a point of the disk facing
+    it; a point, spot or projector light's rays are Mitsuba's ``sample_ray``, probed here: each
+    pair changed at ``probes`` random points with the other held (on the emitter object itself:
+    a virtual call over all of a scene's emitters is recorded anew at every call, ~0.1 s with
+    116 of them)."""
+    emitter = scene.emitters()[index]
+    kind = emitter_kinds(scene)[index]
+    if kind == "surface":
+        return (False, False)
+    if kind == "infinite":
+        return (not mi.has_flag(emitter.flags(), mi.EmitterFlags.DeltaDirection), True)
     rng = np.random.default_rng(1)
     a, b, c = (mi.Point2f(*rng.random((2, probes)).astype(np.float32)) for _ in range(3))
-    em = mi.UInt32(np.full(probes, index, np.uint32))
 
     def ray(u2, u3):
-        r, _ = emitter_rays(scene, bounds, em, u2, u3)
+        r, _ = emitter.sample_ray(0.0, 0.5, u2, u3)
         return np.concatenate([np.broadcast_to(np.asarray(v), (3, probes))
                                for v in (r.o, r.d)])
 
@@ -114,19 +128,15 @@ class EmissionCells:
         return self.size.prod(axis=1)
 
 
-def cells(scene, bounds) -> EmissionCells:
-    """:class:`EmissionCells` of ``scene``'s emitters (module docstring, step 1); ``bounds``:
-    the geometry's (:func:`mi_twopass.scene.bounds.scene_bounds`), where infinite emitters'
-    rays start."""
-    emitters = scene.emitters()
-    n = len(emitters)
+def cells(scene) -> EmissionCells:
+    """:class:`EmissionCells` of ``scene``'s emitters (module docstring, step 1)."""
+    n = len(scene.emitters())
     select = np.broadcast_to(np.asarray(
         scene.pdf_emitter(mi.UInt32(np.arange(n, dtype=np.uint32))), np.float64).ravel(),
         (n,)) if n else np.zeros(0)
     em, lo, size, default, blocks = [], [], [], [], []
-    kinds = emitter_kinds(scene)
     for i in range(n):
-        moves = (False, False) if kinds[i] == "surface" else moving_dims(scene, bounds, i)
+        moves = moving_dims(scene, i)
         res = GRID_4D if all(moves) else GRID_2D
         axes = []
         for pair_moves in moves:
@@ -193,6 +203,12 @@ def neighbour_max(cells_: EmissionCells, values) -> np.ndarray:
             grid = np.maximum(grid, np.maximum(lo, hi))
         out[start:stop] = grid.ravel()
     return out
+
+
+def focus_cells(cells_: EmissionCells, cell_of, score) -> np.ndarray:
+    """The cells the second pilot stage samples (step 3): those that scored in the first and
+    their neighbours."""
+    return neighbour_max(cells_, cell_rms(cells_, cell_of, score)) > 0
 
 
 def cell_rms(cells_: EmissionCells, cell_of, score) -> np.ndarray:
@@ -262,5 +278,5 @@ def camera_importance(scene, sensor, receivers, seed: int, lanes: int = CAMERA_L
 
 
 __all__ = ["EmissionCells", "EmissionGuide", "camera_importance", "cell_rms", "cells",
-           "fitted", "moving_dims", "neighbour_max", "predicted_noise",
+           "fitted", "focus_cells", "moving_dims", "neighbour_max", "predicted_noise",
            "uniform"]

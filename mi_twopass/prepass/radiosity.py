@@ -579,10 +579,12 @@ MAX_PARTICLE_GROWTH = 8
 def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
     """The importance-driven emission of :mod:`mi_twopass.prepass.emission_guide` for ``scene``
     seen by ``sensor``: (guide, pilot particles, the relative standard deviation of one guided
-    particle's camera-weighted flux as the pilot predicts it), or (None, 0, 0.0) where every
-    emitter is an area light, there is no sensor, or the camera reads nothing the pilot's
-    particles reach. The pilot's two stages: every cell, then the cells that scored and their
-    neighbours."""
+    particle's camera-weighted flux as the pilot predicts it), or (None, pilot particles, 0.0)
+    where every emitter is an area light, there is no sensor, the camera reads nothing the
+    pilot's particles reach, or the guide would not divide that variance by
+    ``emission_guide.MIN_GAIN`` (point lights in the open, whose particles all land where the
+    camera looks). The pilot's two stages: every cell, then the cells that scored and their
+    neighbours (:func:`emission_guide.focus_cells`)."""
     emitters = scene.emitters()
     if sensor is None or not emitters or \
             all(kind == "surface" for kind in emitter_kinds(scene)):
@@ -592,7 +594,7 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
     if not W.sum() > 0:
         return None, 0, 0.0
     bounds = scene_bounds(scene)
-    cells = emission_guide.cells(scene, bounds)
+    cells = emission_guide.cells(scene)
     cell_of, score, traced = [], [], 0
 
     def run(pilot_guide, n, stage):
@@ -607,8 +609,7 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
 
     run(emission_guide.uniform(cells),
         max(emission_guide.PILOT_PER_CELL * cells.count, 1 << 13), 0)
-    lit = emission_guide.neighbour_max(
-        cells, emission_guide.cell_rms(cells, cell_of[0], score[0])) > 0
+    lit = emission_guide.focus_cells(cells, cell_of[0], score[0])
     if lit.any():
         run(emission_guide.EmissionGuide(cells, lit.astype(np.float64)),
             emission_guide.PILOT_FOCUS * int(lit.sum()), 1)
@@ -616,7 +617,12 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
     guide = emission_guide.fitted(cells, cell_of, score)
     if guide is None:
         return None, traced, 0.0
-    return guide, traced, emission_guide.predicted_noise(cells, guide.pmf, cell_of, score, 1)
+    guided = emission_guide.predicted_noise(cells, guide.pmf, cell_of, score, 1)
+    plain = emission_guide.predicted_noise(cells, cells.default / cells.default.sum(),
+                                           cell_of, score, 1)
+    if guided ** 2 * emission_guide.MIN_GAIN > plain ** 2:
+        return None, traced, 0.0  # Mitsuba's own emission is about as good: no guide
+    return guide, traced, guided
 
 
 def guided_particles(n_particles: int, noise_per_particle: float) -> int:

@@ -73,16 +73,19 @@ SETTINGS = R.RadiositySettings(max_patches=64, elements_per_patch=1)
 def test_moving_dims_tell_a_suns_disk_from_a_skys_directions():
     scene = window_scene(sun())
     # a sun: one direction (u2 unused), a point of the disk facing it (u3)
-    assert G.moving_dims(scene, scene_bounds(scene), 0) == (False, True)
+    assert G.moving_dims(scene, 0) == (False, True)
     sky = mi.load_dict({"type": "scene", "floor": slab(0, 0, 0, 1, 1),
                         "sky": {"type": "constant"}})
-    assert G.moving_dims(sky, scene_bounds(sky), 0) == (True, True)
+    assert G.moving_dims(sky, 0) == (True, True)
+    point = mi.load_dict({"type": "scene", "floor": slab(0, 0, 0, 1, 1),
+                          "lamp": {"type": "point", "position": [0, 0, 1]}})
+    assert G.moving_dims(point, 0) == (False, True)  # Mitsuba's sample_ray: u3 the direction
 
 
 def test_cells_cover_each_emitters_sample_space_once():
     scene = mi.load_dict({"type": "scene", "sun": sun(), "sky": {"type": "constant"},
                           "lamp": {**slab(0, 0, 1, 0.2, 0.2), "emitter": {"type": "area"}}})
-    cells = G.cells(scene, scene_bounds(scene))
+    cells = G.cells(scene)
     per_emitter = np.bincount(cells.emitter, minlength=3)
     assert sorted(per_emitter.tolist()) == sorted([1, G.GRID_2D ** 2, G.GRID_4D ** 4])
     # volumes tile [0,1)^4 per emitter; Mitsuba's own choice sums to 1
@@ -93,7 +96,7 @@ def test_cells_cover_each_emitters_sample_space_once():
 
 def test_neighbours_share_and_every_cell_keeps_a_defensive_share():
     scene = window_scene(sun())
-    cells = G.cells(scene, scene_bounds(scene))
+    cells = G.cells(scene)
     rms = np.zeros(cells.count)
     rms[5 * G.GRID_2D + 7] = 1.0
     near = G.neighbour_max(cells, rms).reshape(G.GRID_2D, G.GRID_2D)
