@@ -36,14 +36,18 @@ def spawn_ray_to(si, target, scale):
     return mi.Ray3f(o, d / dist, dist * (1.0 - mi.math.ShadowEpsilon), si.time, si.wavelengths)
 
 
-def shadow_ray(si, ds, scale):
+def shadow_ray(si, ds, scale, infinite_emitters: bool = True):
     """The shadow ray of an emitter sample ``ds`` at ``si``: :func:`spawn_ray_to` its point,
     and on to infinity for an infinite emitter (sky, sun, envmap). Mitsuba places that point 2R
     away, R the radius of ``scene.bbox()``, and Mitsuba 3.9 leaves the rectangles it merges into
     one mesh out of that box: a shadow ray ending there passed a room's walls, and a sky lit
     the inside of a closed room (Mitsuba's ``path`` has that leak; tests/hard_scenes.py
-    ``sky_room``)."""
+    ``sky_room``). ``infinite_emitters``: whether the scene has any
+    (:func:`mi_twopass.scene.emission.has_infinite_emitters`); without, the ray is
+    :func:`spawn_ray_to`'s and no virtual call asks the emitter's flags."""
     ray = spawn_ray_to(si, ds.p, scale)
+    if not infinite_emitters:
+        return ray
     infinite = mi.has_flag(ds.emitter.flags(), mi.EmitterFlags.Infinite)
     ray.maxt = dr.select(infinite, dr.inf, ray.maxt)
     return ray

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..prepass.spike_grid import INVALID
 from ..rays import shadow_ray
+from ..scene.emission import has_infinite_emitters
 from .pathtrace import emission_mis as scene_emission_mis
 from .pathtrace import emitter_sample_mis as scene_emitter_sample_mis
 from .pathtrace import mis_weight
@@ -327,7 +328,8 @@ def sample_emitter_mis(lights: LightSampler, scene, si, bsdf, bsdf_ctx, sampler,
     emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), lights.emitter_index(sid, ok), ok)
     ds, spec = emitter.sample_direction(si, u_dir, ok)
     cast = ok & (ds.pdf != 0.0) & dr.any(spec != 0.0)
-    visible = cast & ~scene.ray_test(shadow_ray(si, ds, scale), cast)
+    visible = cast & ~scene.ray_test(
+        shadow_ray(si, ds, scale, has_infinite_emitters(scene)), cast)
     f, bsdf_pdf = bsdf.eval_pdf(bsdf_ctx, si, si.to_local(ds.d), visible)
     w = dr.select(ds.delta, 1.0, mis_weight(P * ds.pdf, bsdf_pdf))
     Ld = f * spec * (w / dr.maximum(P, _TINY))

@@ -12,6 +12,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..rays import shadow_ray, spawn_ray
+from ..scene.emission import has_infinite_emitters
 
 
 def path_start(ray, active, lights):
@@ -62,7 +63,8 @@ def emitter_sample_mis(scene, si, bsdf, ctx, u, active, scale=1.0):
     ``scale`` (:func:`mi_twopass.rays.shadow_ray`; 1: Mitsuba's own)."""
     ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
     cast = active & (ds.pdf != 0.0) & dr.any(em_weight != 0.0)
-    visible = cast & ~scene.ray_test(shadow_ray(si, ds, scale), cast)
+    visible = cast & ~scene.ray_test(
+        shadow_ray(si, ds, scale, has_infinite_emitters(scene)), cast)
     bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), visible)
     w = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
     return dr.select(visible, w * bsdf_val * em_weight, 0.0), cast

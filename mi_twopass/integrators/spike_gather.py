@@ -10,6 +10,7 @@ from ..prepass.radiosity import virtual_point_reached
 from ..prepass.spike_grid import INVALID, SpikeSettings
 from ..prepass.spike_grid import build as build_spike
 from ..rays import shadow_ray
+from ..scene.emission import has_infinite_emitters
 from ..scene.bounds import ray_scale
 from .base import (FarGatherIntegrator, needs_memory, read_bool, read_choice, read_float,
                    read_int)
@@ -416,7 +417,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             # emitters: a shadow ray; reclassified patches: the ray must first meet the patch
             # where it is cached (virtual_point_reached: elsewhere the implicit ray traces on)
             cast = is_em | is_vl
-            shadow = shadow_ray(si, ds_l, scale)
+            shadow = shadow_ray(si, ds_l, scale, has_infinite_emitters(scene))
             visible = is_em & ~scene.ray_test(shadow, is_em)
             visible |= virtual_point_reached(scene, sol, si, w_y, vl_pid, dist, scale, is_vl)
             n_explicit += dr.select(cast, 1, 0)

@@ -79,4 +79,10 @@ def emitter_kinds(scene):
     return kinds
 
 
-__all__ = ["emitter_kinds", "emitter_rays"]
+def has_infinite_emitters(scene) -> bool:
+    """``scene`` has a sky, sun or environment map (:func:`mi_twopass.rays.shadow_ray` asks
+    their rays' emitter only then)."""
+    return any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) for e in scene.emitters())
+
+
+__all__ = ["emitter_kinds", "emitter_rays", "has_infinite_emitters"]
