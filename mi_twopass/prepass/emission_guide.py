@@ -15,7 +15,7 @@ where the *camera's* reads will meet them.
 
 1. **Cells.** Each emitter's primary sample space, the (u2, u3) ∈ [0,1)⁴ from which
    :func:`mi_twopass.scene.emission.emitter_rays` builds its rays, is cut into cells over the
-   dimensions the ray depends on (probed, :func:`cells`): ``GRID_2D``² cells where one pair
+   dimensions the ray depends on (:func:`moving_dims`): ``GRID_2D``² cells where one pair
    matters (a sun's disk position, a point light's direction), ``GRID_4D``⁴ where both do (a
    sky's direction and disk position). An area emitter is one cell: its share of the
    particles is what is guided.
@@ -24,11 +24,11 @@ where the *camera's* reads will meet them.
    gather, its continuation and the spike lists will read the solution.
 3. **Pilot**, in two stages: ``PILOT_PER_CELL`` particles per cell on average, the cells
    chosen uniformly; then ``PILOT_FOCUS`` per cell on the cells that scored and their
-   neighbours (a lit window is a few per cent of a sun's disk: a uniform pilot of a few
-   particles per cell misses the cells it only partly covers; :func:`focus_cells`). A particle's score is the
-   W-weighted flux of all its deposits, brought to a common scale (× the pilot's
-   probability of its cell × its particle count: the contribution density f times the cell
-   volume V_c).
+   neighbours (:func:`focus_cells`; a lit window is a few per cent of a sun's disk: a
+   uniform pilot of a few particles per cell misses the cells it only partly covers). A
+   particle's score is the W-weighted flux of all its deposits, brought to a common scale
+   (× the pilot's probability of its cell × its particle count: the contribution density f
+   times the cell volume V_c).
 4. **The guide** (:func:`fitted`): cell c is drawn with probability
    P_c = (1 − α) · r_c / Σ r + α · P_default(c),   r_c = max(rms_c, γ · max of its
    neighbours' rms_c),
@@ -46,8 +46,8 @@ pilot of 8 per cell, 0.7 % with the neighbours' share and 0.4 % with the second 
 
 Only scenes with an emitter that is not an area light get a guide (its cost: a camera pass of
 ``CAMERA_LANES`` paths and the pilot); area lights alone are sampled as before. A guide the
-pilot predicts to gain less than ``MIN_GAIN`` in variance is dropped (many_lights' four point
-lights in an open street: the pilot's cost doubled the radiosity prepass for nothing).
+pilot predicts to gain less than ``MIN_GAIN`` in variance is dropped (scenes_xml/caustic.xml's
+sky: 1.8×; mixed_room 79×, window_interior 17×, many_lights' four point lights 6×).
 """
 from __future__ import annotations
 
