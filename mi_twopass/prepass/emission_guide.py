@@ -84,16 +84,18 @@ CAMERA_LANES = 1 << 16
 CAMERA_BOUNCES = 3
 
 
-def moving_dims(scene, index: int, probes: int = 16) -> tuple[bool, bool]:
+def moving_dims(scene, index: int, probes: int = 16, kind: str | None = None
+                ) -> tuple[bool, bool]:
     """Whether the rays :func:`mi_twopass.scene.emission.emitter_rays` builds for emitter
     ``index`` move with its first sample pair u2 and with its second u3. An infinite emitter's
     u2 picks a direction (fixed for a delta direction: a sun) and u3 a point of the disk facing
     it; a point, spot or projector light's rays are Mitsuba's ``sample_ray``, probed here: each
     pair changed at ``probes`` random points with the other held (on the emitter object itself:
     a virtual call over all of a scene's emitters is recorded anew at every call, ~0.1 s with
-    116 of them)."""
+    116 of them). ``kind``: the emitter's :func:`~mi_twopass.scene.emission.emitter_kinds`
+    entry, where the caller has them."""
     emitter = scene.emitters()[index]
-    kind = emitter_kinds(scene)[index]
+    kind = kind if kind is not None else emitter_kinds(scene)[index]
     if kind == "surface":
         return (False, False)
     if kind == "infinite":
@@ -141,8 +143,9 @@ def cells(scene) -> EmissionCells:
         scene.pdf_emitter(mi.UInt32(np.arange(n, dtype=np.uint32))), np.float64).ravel(),
         (n,)) if n else np.zeros(0)
     em, lo, size, default, blocks = [], [], [], [], []
+    kinds = emitter_kinds(scene)
     for i in range(n):
-        moves = moving_dims(scene, i)
+        moves = moving_dims(scene, i, kind=kinds[i])
         res = GRID_4D if all(moves) else GRID_2D
         axes = []
         for pair_moves in moves:
