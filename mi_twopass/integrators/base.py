@@ -259,8 +259,8 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
     #: the prepass looks through the camera (film size, pose): sensor parameters join its key.
     #: Subclasses whose prepass ignores the camera set False (fewer rebuilds).
     PREPASS_USES_CAMERA = True
-    #: radiosity solves this prepass may share with others of the same scene and camera (a
-    #: dict ``twopass`` gives its candidates, :func:`mi_twopass.prepass.radiosity.build`)
+    #: radiosity solves this prepass may share with others of the same scene and camera (the
+    #: ``SolveMemo`` twopass gives its candidates, :func:`mi_twopass.prepass.radiosity.build`)
     radiosity_memo = None
 
     def __init__(self, props):

@@ -66,9 +66,9 @@ def infinite_light_leaks(scene, bounds: SceneBounds | None = None) -> bool:
     that short box, and they pass walls — Mitsuba's ``path`` lets the sky into closed rooms
     (:func:`mi_twopass.rays.shadow_ray` is ours). Loading the scene with ``optimize=False``
     avoids the merge."""
-    import mitsuba as mi
+    from .emission import has_infinite_emitters
 
-    if not any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) for e in scene.emitters()):
+    if not has_infinite_emitters(scene):
         return False
     bounds = bounds if bounds is not None else scene_bounds(scene)
     if bounds.empty:
