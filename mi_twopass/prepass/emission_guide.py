@@ -52,8 +52,6 @@ sky: 1.8×; mixed_room 79×, window_interior 17×, many_lights' four point light
 """
 from __future__ import annotations
 
-import itertools
-
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -64,6 +62,8 @@ from ..scene.emission import emitter_kinds
 GRID_2D = 32
 #: cells per dimension where both pairs do
 GRID_4D = 6
+#: cells of all emitters' grids together at most (grid_resolution)
+MAX_CELLS = 16384
 #: pilot particles per cell (mean), first stage, and per cell of the second stage's cells
 PILOT_PER_CELL = 4
 PILOT_FOCUS = 32
@@ -136,28 +136,45 @@ class EmissionCells:
         return self.size.prod(axis=1)
 
 
+def grid_resolution(moves, gridded: int) -> int:
+    """Cells per cut dimension of an emitter whose sample pairs move its rays as ``moves``
+    says, when ``gridded`` emitters are cut: ``GRID_2D`` (one pair) or ``GRID_4D`` (both), less
+    where the scene's grids would pass ``MAX_CELLS`` in all (a street of 200 point lights
+    would otherwise take 200 × 1024 cells and a pilot of 800k particles); 1 below 2."""
+    dims = 2 * sum(bool(m) for m in moves)
+    if dims == 0:
+        return 1
+    res = min(GRID_4D if dims == 4 else GRID_2D,
+              int((MAX_CELLS / max(gridded, 1)) ** (1.0 / dims) + 1e-9))
+    return res if res >= 2 else 1
+
+
 def cells(scene) -> EmissionCells:
     """:class:`EmissionCells` of ``scene``'s emitters (module docstring, step 1)."""
     n = len(scene.emitters())
     select = np.broadcast_to(np.asarray(
         scene.pdf_emitter(mi.UInt32(np.arange(n, dtype=np.uint32))), np.float64).ravel(),
         (n,)) if n else np.zeros(0)
-    em, lo, size, default, blocks = [], [], [], [], []
     kinds = emitter_kinds(scene)
+    moves = [moving_dims(scene, i, kind=kinds[i]) for i in range(n)]
+    gridded = sum(any(m) for m in moves)
+    em, lo, size, default, blocks = [], [], [], [], []
+    start = 0
     for i in range(n):
-        moves = moving_dims(scene, i, kind=kinds[i])
-        res = GRID_4D if all(moves) else GRID_2D
-        axes = []
-        for pair_moves in moves:
-            k = res if pair_moves else 1
-            axes += [k, k]
-        blocks.append((len(em), tuple(k for k in axes if k > 1)))
-        for idx in itertools.product(*(range(k) for k in axes)):
-            em.append(i)
-            lo.append([j / k for j, k in zip(idx, axes)])
-            size.append([1.0 / k for k in axes])
-            default.append(select[i] / float(np.prod(axes)))
-    return EmissionCells(em, lo, size, default, blocks)
+        res = grid_resolution(moves[i], gridded)
+        axes = np.array([res if m else 1 for m in moves[i] for _ in range(2)])
+        count = int(axes.prod())
+        idx = np.indices(axes).reshape(4, -1).T  # row-major, as neighbour_max reshapes
+        em.append(np.full(count, i))
+        lo.append(idx / axes)
+        size.append(np.broadcast_to(1.0 / axes, (count, 4)))
+        default.append(np.full(count, select[i] / count))
+        blocks.append((start, tuple(int(k) for k in axes if k > 1)))
+        start += count
+    if n == 0:
+        return EmissionCells([], np.zeros((0, 4)), np.zeros((0, 4)), [], [])
+    return EmissionCells(np.concatenate(em), np.concatenate(lo), np.concatenate(size),
+                         np.concatenate(default), blocks)
 
 
 class EmissionGuide:

@@ -94,6 +94,22 @@ def test_cells_cover_each_emitters_sample_space_once():
     assert np.all(cells.lo >= 0) and np.all(cells.lo + cells.size <= 1 + 1e-12)
 
 
+def test_many_point_lights_share_the_cell_budget():
+    """200 point lights: each grid is cut coarser so that all of them stay within MAX_CELLS
+    (at full resolution, 200 × 1024 cells and a pilot of 800k particles)."""
+    d = {"type": "scene", "floor": slab(0, 0, 0, 5, 5)}
+    for k in range(200):
+        d[f"lamp{k}"] = {"type": "point", "position": [k * 0.05 - 5, 0, 1]}
+    cells = G.cells(mi.load_dict(d))
+    res = G.grid_resolution((False, True), 200)
+    assert res == int((G.MAX_CELLS / 200) ** 0.5) < G.GRID_2D
+    assert cells.count == 200 * res ** 2 <= G.MAX_CELLS
+    assert np.allclose(np.bincount(cells.emitter, weights=cells.volume), 1.0)
+    assert G.grid_resolution((True, True), 1) == G.GRID_4D
+    assert G.grid_resolution((False, False), 1) == 1
+    assert G.grid_resolution((True, True), 10 ** 6) == 1
+
+
 def test_neighbours_share_and_every_cell_keeps_a_defensive_share():
     scene = window_scene(sun())
     cells = G.cells(scene)
