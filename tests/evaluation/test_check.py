@@ -159,7 +159,9 @@ def test_a_sky_in_a_room_of_merged_walls_gets_an_unmerged_reference(tmp_path, re
     img = reference.reference_image(str(p), {}, spp=64)
     unmerged = reference.render_path(load_scene(str(p), optimize=False), 64)
     leaky = reference.render_path(merged, 64)
-    assert np.array_equal(img, unmerged)
+    # not bit for bit: Mitsuba's parallel loading may order the shapes differently from one
+    # load to the next (docs/design.md, "Vectorisation"), which changes the samples drawn
     assert leaky.mean() > 1.2 * unmerged.mean()  # the leak the reference avoids
+    assert abs(img.mean() - unmerged.mean()) < 0.2 * (leaky.mean() - unmerged.mean())
     meta = [json.loads(f.read_text()) for f in ref_cache.glob("*.json")]
     assert [m["unmerged"] for m in meta] == [True]
