@@ -135,8 +135,9 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     4. per row, cheapest best case first: skipped for a structural reason, a best case that
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
        the photons the budget pays for first); else built and piloted on the same pixels;
-    5. variances again against the pooled pixel means; the lowest score wins, once a winner
-       that may be biased has passed the bias test of :func:`check_bias`."""
+    5. variances again against the pooled pixel means; the lowest score, with the pilot and
+       the prepasses built counted as spent for every candidate (:func:`cost.spend`), wins,
+       once a winner that may be biased has passed the bias test of :func:`check_bias`."""
     spp = max(int(render_spp or sensor.sampler().sample_count()), 1)
     t_start = time.perf_counter()
     build_seconds = 0.0
@@ -200,8 +201,16 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     for c in others:
         decision.best_case[c.name] = cost.best_case_score(variance, path_m, c, spp)
     best = min((m.score(spp) for m in measured.values()), default=float("inf"))
-    budget = budget_factor * spp * path_m.seconds_per_spp
+    path_seconds = spp * path_m.seconds_per_spp
     for c in sorted(others, key=lambda c: decision.best_case[c.name]):
+        # the break-even budget for the first structure only: once one is measured, the
+        # others' best cases (near 0 for a composition that serves every part) promise
+        # nothing the measured one has not, and many_lights at 256², 64 spp, built the
+        # radiance cache's 1.25 s beside the spike lists and rendered with the lists
+        first = not any(n != path_row.name for n in measured)
+        share = (cost.prepass_budget(decision.best_case[c.name], path_m.score(spp),
+                                     budget_factor) if first else budget_factor)
+        budget = share * path_seconds
         why = cost.structural_reason(c, scene_traits)
         if why is None and c.caustics == "rex" and \
                 variance.caustic < cost.CAUSTIC_SHARE * variance.total:
@@ -210,24 +219,24 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         if why is None and decision.best_case[c.name] * cost.MIN_GAIN >= best:
             why = (f"best case {decision.best_case[c.name]:.3g} (relMSE x s) cannot beat "
                    f"{best:.3g} by {cost.MIN_GAIN}x")
+        if why is not None:  # before light_paths: rex's photon need is a size pass and a
+            decision.skipped[c.name] = why  # probe shoot (1.3 s on many_lights at 256²)
+            continue
         spent = time.perf_counter() - t_start
         integ = candidate(c)
         least, need = cost.light_paths(integ, scene, sensor)
         floor = cost.prepass_floor(need, path_m, film_pixels)
-        if why is None and spent + floor > budget and measured and least < need:
+        if spent + floor > budget and measured and least < need:
             # rexes coarser than the image asks for: the photons the budget pays for
             fits = cost.light_paths_within(budget - spent, path_m, film_pixels)
             if fits >= least:
                 integ = candidate(c, photons=fits)
                 decision.fitted[c.name] = (fits, need)
                 floor = cost.prepass_floor(fits, path_m, film_pixels)
-        if why is None and spent + floor > budget and measured:
-            path_s = spp * path_m.seconds_per_spp
-            why = (f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
-                   f"> {budget:.3g} s ({budget_factor:g} x path's predicted "
-                   f"{path_s:.3g} s)")
-        if why is not None:
-            decision.skipped[c.name] = why
+        if spent + floor > budget and measured:
+            decision.skipped[c.name] = (
+                f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
+                f"> {budget:.3g} s ({share:.3g} x path's predicted {path_seconds:.3g} s)")
             continue
         try:
             _, seconds = integ.ensure_prepass(scene, seed, sensor)
@@ -255,6 +264,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     for name, (_, _, run) in runs.items():
         measured[name].variance = relative_variance(run.values, pooled)
     decision.measured = measured
+    cost.spend(measured, time.perf_counter() - t_start)
     name = check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, decision,
                       cost.CHECK_BUDGET * spp * path_m.seconds_per_spp)
     decision.chosen = runs[name][0]

@@ -80,6 +80,13 @@ CHECK_SIGMAS = 2.0
 #: building stops once the pilot and the prepasses built have taken this share of the time
 #: ``path`` is predicted to need for the render (``pilot_budget``)
 PILOT_BUDGET = 0.25
+#: a candidate whose best case beats path's score by g may have its prepass started while the
+#: pilot and the prepasses so far leave room for BREAK_EVEN_SHARE of its break-even time,
+#: (g − 1) × path's predicted render time (:func:`prepass_budget`), up to BREAK_EVEN_MAX of
+#: that render time (and never less than ``pilot_budget``): the best case is an upper bound
+#: of the gain and the prepass floor a lower bound of the cost, so both keep a margin
+BREAK_EVEN_SHARE = 0.5
+BREAK_EVEN_MAX = 1.0
 #: a prepass is predicted to cost at least this many path samples' time per light path it
 #: traces (radiosity particles, rex photons); measured on the corpus at 128²: 2.4 (office,
 #: window_interior) to 38 (furnace), docs/design.md "twopass"
@@ -196,16 +203,34 @@ class Measured:
     mean_ratio: float
     #: the standard error of the bias estimate (:class:`Bias`); 0 for path, the reference
     bias_se: float = 0.0
+    #: once building is over, the seconds the pilot and every prepass built have taken: spent
+    #: whichever candidate renders, so the final choice counts them for every candidate
+    #: instead of each one's own prepass (:func:`spend`); None while candidates are built
+    sunk_seconds: float | None = None
 
     def predicted_error(self, spp: int) -> float:
         return self.variance / spp + self.bias2
 
     def predicted_seconds(self, spp: int) -> float:
-        return self.prepass_seconds + spp * self.seconds_per_spp
+        spent = self.prepass_seconds if self.sunk_seconds is None else self.sunk_seconds
+        return spent + spp * self.seconds_per_spp
 
     def score(self, spp: int) -> float:
         """Predicted relMSE × seconds of a render of ``spp`` samples per pixel."""
         return self.predicted_error(spp) * self.predicted_seconds(spp)
+
+
+def spend(measured: dict, seconds: float) -> None:
+    """Mark building as over: every candidate's predicted render time is ``seconds`` (the
+    pilot and all prepasses, spent whichever renders) plus its own samples. A candidate is
+    built on the promise that its prepass pays (its score with its own prepass); once it is
+    built, that prepass is sunk, and scoring it again would throw away a structure already
+    paid for. Before session 9 twopass did: on many_lights at 256², 64 spp, it built the
+    spike lists (1.8 s with the pilot), found path's render time plus nothing ahead of the
+    lists' plus their prepass, and rendered path: relMSE 0.18 in 2.7 s where path alone had
+    0.18 in 0.8 s."""
+    for m in measured.values():
+        m.sunk_seconds = seconds
 
 
 def light_paths(integ, scene, sensor=None) -> tuple[int, int]:
@@ -258,6 +283,27 @@ def none_fit(light_path_counts: dict, path_samples: int, budget_share: float):
                    f"{PREPASS_FLOOR_FACTOR:g} path samples' time each, more than "
                    f"{budget_share:g} x the render's {path_samples} path samples")
             for name, n in light_path_counts.items()}
+
+
+def prepass_budget(best_case: float, path_score: float, pilot_share: float) -> float:
+    """The share of path's predicted render time P = N·t_p that the pilot and the prepasses
+    may have spent, a candidate's own included, when its prepass is started.
+
+    A candidate of prepass T, cost t_c and variance v_c per sample scores below path at N
+    samples per pixel only if (T + N·t_c)·v_c < N·t_p·v_p, i.e. T < P·(v_p/v_c − t_c/t_p)
+    ≤ P·(g − 1), g = path's score over the candidate's best case (:func:`best_case_score`:
+    t_c ≥ t_p and v_c at least the best case's). The share is :data:`BREAK_EVEN_SHARE` of
+    that bound, at least ``pilot_share`` (``pilot_budget``, the share every candidate had
+    until session 9) and at most :data:`BREAK_EVEN_MAX`, or ``pilot_share`` where that is
+    larger (0 stays 0: path only). A candidate with little to gain gets no more than
+    before; one whose best case is far ahead of path may spend up to P. Only the first
+    candidate built gets it (:func:`mi_twopass.compose.choose.choose`): the best case of a
+    composition that serves every part is near 0 whatever was measured before it."""
+    if pilot_share <= 0.0:  # pilot_budget = 0: path only
+        return 0.0
+    gain = path_score / best_case if best_case > 0 else math.inf
+    share = min(BREAK_EVEN_SHARE * (gain - 1.0), BREAK_EVEN_MAX)
+    return max(share, pilot_share)
 
 
 def best_case_score(parts: VarianceParts, path: Measured, c: Composition, spp: int) -> float:

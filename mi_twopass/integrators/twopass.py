@@ -49,8 +49,11 @@ class TwoPassChooser(TwoPassIntegrator):
            each part's relative variance measured
         2. for each composition the forced choices allow, by its best case (path's variance
            less the parts it serves, at path's cost, no prepass): skip it when the best case
-           cannot beat the best measured so far by 1.25×, once ``pilot_budget`` of path's
-           predicted render time is spent, or where the scene gives it nothing
+           cannot beat the best measured so far by 1.25×, once the pilot and the prepasses
+           so far leave no room for its prepass in its budget (half its best case's
+           break-even prepass time, between ``pilot_budget`` and all of path's predicted
+           render time: :func:`mi_twopass.compose.cost.prepass_budget`), or where the scene
+           gives it nothing
            (one emitter for spike lists, no Lambertian surface, a finite max_depth for a far
            field); else build its prepass and pilot it on the same pixels
         3. take the candidate of least predicted relMSE × seconds,
@@ -58,7 +61,7 @@ class TwoPassChooser(TwoPassIntegrator):
            relative bias against the path pilot, pixel by pixel
         4. where it reads a cache and a bias too small for its pilot to see could still make
            it lose to the runner-up, test it against path again with more samples per pixel
-           (within 10 % of path's predicted render time) and choose again
+           (within 5 % of path's predicted render time) and choose again
            (:func:`mi_twopass.compose.choose.check_bias`); render with the winner
 
     Every composition is one of the suite's estimators (or ``path``), each consistent or
@@ -93,9 +96,11 @@ class TwoPassChooser(TwoPassIntegrator):
        - Pixels of the pilot (default: 1024; the whole film if smaller).
      * - pilot_budget
        - |float|
-       - No prepass is started once the pilot and the prepasses built have spent this share
-         of the time ``path`` is predicted to need for the render (default: 0.25; 0: path only,
-         unless a choice is forced).
+       - The least share of the time ``path`` is predicted to need for the render that the
+         pilot and the prepasses may spend, a candidate's own prepass included (default:
+         0.25; a candidate whose best case is far ahead of path may spend more, up to that
+         whole time; 0: path only, unless a choice is forced). Where no prepass fits this
+         share, there is no pilot.
      * - debug
        - |string|
        - "none"; "direct_technique" colours the first non-delta hit orange where a spike list

@@ -76,12 +76,48 @@ def test_score_is_predicted_error_times_seconds_and_prepass_amortises():
     assert path.score(4096) > m.score(4096)  # a long one: it does
 
 
+def test_a_built_prepass_is_spent_whichever_candidate_renders():
+    """many_lights at 256², 64 spp (session 9's bench): the lists' prepass was more than the
+    render, so path scored lower with it counted, though the lists were built and had 16x
+    less variance per sample. Once built, every candidate carries the same spent seconds."""
+    path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.04, variance=9.0, bias2=0.0,
+                         mean_ratio=1.0)
+    lists = cost.Measured(prepass_seconds=3.0, seconds_per_spp=0.08, variance=0.6, bias2=0.0,
+                          mean_ratio=1.0)
+    spp = 4
+    assert path.score(spp) < lists.score(spp)  # whether to build: the prepass must pay
+    cost.spend({"path": path, "lists": lists}, 3.5)  # pilot + prepass, spent
+    assert path.predicted_seconds(spp) == pytest.approx(3.5 + spp * 0.04)
+    assert lists.predicted_seconds(spp) == pytest.approx(3.5 + spp * 0.08)
+    assert lists.score(spp) < path.score(spp)  # what to render with: the lists
+    assert lists.prepass_seconds == 3.0  # its own prepass is still reported
+
+
 def test_prepass_floor_counts_light_paths_at_path_cost():
     path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.02, variance=1.0, bias2=0.0,
                          mean_ratio=1.0)
     # 1e6 light paths on a 100×100 film: 100 path samples per pixel's worth of paths
     assert cost.prepass_floor(10**6, path, 10**4) == pytest.approx(
         cost.PREPASS_FLOOR_FACTOR * 100 * 0.02)
+
+
+def test_prepass_budget_follows_the_best_case_break_even_within_its_bounds():
+    # path's score 1.0; a best case of 0.2 (g = 5) breaks even with a prepass of 4 P
+    assert cost.prepass_budget(0.2, 1.0, 0.25) == pytest.approx(cost.BREAK_EVEN_MAX)
+    # g = 1.5: half of 0.5 P is 0.25 P, g = 1.2: 0.1 P, but never below the pilot budget
+    assert cost.prepass_budget(1.0 / 1.5, 1.0, 0.1) == pytest.approx(
+        cost.BREAK_EVEN_SHARE * 0.5)
+    assert cost.prepass_budget(1.0 / 1.2, 1.0, 0.25) == pytest.approx(0.25)
+    assert cost.prepass_budget(0.0, 1.0, 0.25) == pytest.approx(cost.BREAK_EVEN_MAX)
+    assert cost.prepass_budget(0.0, 1.0, 2.0) == pytest.approx(2.0)  # a larger pilot budget
+    assert cost.prepass_budget(0.01, 1.0, 0.0) == 0.0  # pilot_budget = 0: path only
+    # the bound it halves: a candidate at its best case that spends (g - 1) P ties with path
+    path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.01, variance=2.0, bias2=0.0,
+                         mean_ratio=1.0)
+    spp, g = 64, 4.0
+    tie = cost.Measured(prepass_seconds=(g - 1) * spp * 0.01, seconds_per_spp=0.01,
+                        variance=2.0 / g, bias2=0.0, mean_ratio=1.0)
+    assert tie.score(spp) == pytest.approx(path.score(spp))
 
 
 def test_none_fit_decides_without_a_pilot_only_when_every_floor_is_too_big():
