@@ -1,9 +1,16 @@
-"""Harness bookkeeping (interpolation, time to target, equal-time ratio) and image I/O."""
+"""Harness bookkeeping (interpolation, time to target, equal-time ratio), its warm-up and image
+I/O."""
+import os
+import sys
+
 import numpy as np
 import pytest
 
 from mi_twopass.evaluation import harness, images
 from mi_twopass.evaluation.harness import Curve, Point
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import hard_scenes as hs  # noqa: E402
 
 
 def curve(label, times, errors):
@@ -33,6 +40,26 @@ def test_equal_time_ratio_and_speedup():
     assert curves["x"].summary["equal_spp_at"] == 4
     table = harness.format_table(curves)
     assert "4.00" in table and "path" in table
+
+
+def test_warm_up_builds_what_a_long_twopass_render_builds():
+    """At 1 spp twopass renders path with no pilot; its warm-up plans for a long render, so
+    the pilot and the structures it builds are compiled before the timed points (128² px:
+    on a 16² film no prepass fits a quarter of even 4096 spp of path, and there is no
+    pilot)."""
+    import mitsuba as mi
+
+    import mi_twopass  # noqa: F401
+    d = hs.box()
+    d["sensor"]["film"].update(width=128, height=128)
+    scene = mi.load_dict(d)
+    short = harness.make_integrator("twopass")
+    mi.render(scene, integrator=short, spp=1)
+    assert list(short.stats["twopass_candidates"]) == []  # no pilot at 1 spp
+    warm = harness.warm_up(scene, "twopass", 7)
+    assert warm.planned_spp == harness.WARM_UP_PLANNED_SPP
+    assert len(warm.stats["twopass_candidates"]) >= 2  # path's pilot and a structure's
+    assert not hasattr(harness.warm_up(scene, "path", 7), "planned_spp")
 
 
 def test_spec_parsing():
