@@ -226,14 +226,15 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         integ = candidate(c)
         least, need = cost.light_paths(integ, scene, sensor)
         floor = cost.prepass_floor(need, path_m, film_pixels)
-        if spent + floor > budget and measured and least < need:
+        pilot_room = budget_factor * path_seconds - spent
+        if measured and least < need and floor > pilot_room:
             # rexes coarser than the image asks for: the photons pilot_budget pays for, at
-            # least rex's floor where the candidate's own budget pays for that (more photons
-            # trade bias for time in a way the floor does not predict: tut-cbox at 256², 64
-            # spp, with the photons of the whole break-even budget: 2.0 M in 2.85 s, 3x their
-            # floor, for half the error of 0.41 M in 0.92 s)
-            fits = cost.light_paths_within(budget_factor * path_seconds - spent, path_m,
-                                           film_pixels)
+            # least rex's floor where the candidate's own budget pays for that. Not the
+            # photons of the whole break-even budget: they trade bias for time in a way the
+            # floor does not predict (tut-cbox at 256²: the 4.1 M photons the image needs took
+            # 5.8 s at 128 spp, 2.7x their floor; 64 spp with 2.0 M: 2.85 s for half the
+            # error of 0.41 M in 0.92 s)
+            fits = cost.light_paths_within(pilot_room, path_m, film_pixels)
             if cost.light_paths_within(budget - spent, path_m, film_pixels) >= least:
                 fits = max(fits, least)
             if fits >= least:
