@@ -13,8 +13,8 @@ import numpy as np
 
 from ..scene.lambertian import is_lambertian
 from . import cost
-from .pilot import (PilotSettings, choose_pixels, pilot, pixel_means, relative_variance,
-                    run_samples, samples_array)
+from .pilot import (PilotSettings, choose_pixels, path_reference, pilot, pixel_means,
+                    relative_variance, run_samples, samples_array)
 
 
 class Choice:
@@ -135,7 +135,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     4. per row, cheapest best case first: skipped for a structural reason, a best case that
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
        the photons the budget pays for first); else built and piloted on the same pixels;
-    5. variances again against the pooled pixel means; the lowest score, with the pilot and
+    5. variances again against the pilots' pooled pixel means (path's against the other
+       pilots' means: :func:`~mi_twopass.compose.pilot.path_reference`); the lowest score, with the pilot and
        the prepasses built counted as spent for every candidate (:func:`cost.spend`), wins,
        once a winner that may be biased has passed the bias test of :func:`check_bias`."""
     spp = max(int(render_spp or sensor.sampler().sample_count()), 1)
@@ -270,7 +271,9 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     # the variances again against every pilot's pixel means (less noise in R)
     pooled = np.mean([pixel_means(r[2].values) for r in runs.values()], axis=0)
     for name, (_, _, run) in runs.items():
-        measured[name].variance = relative_variance(run.values, pooled)
+        ref = pooled if name != path_row.name else path_reference(
+            run.values, [r[2].values for n, r in runs.items() if n != name])
+        measured[name].variance = relative_variance(run.values, ref)
     decision.measured = measured
     cost.spend(measured, time.perf_counter() - t_start)
     name = check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, decision,

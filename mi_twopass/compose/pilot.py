@@ -144,3 +144,22 @@ def relative_variance(values: np.ndarray, reference: np.ndarray, eps: float = RE
 def pixel_means(values: np.ndarray) -> np.ndarray:
     """The pilot's estimate of each pixel: (pixels, 3)."""
     return values.mean(axis=1)
+
+
+def path_reference(path_values: np.ndarray, others: list) -> np.ndarray:
+    """The pixels' reference R for path's relative variance once other pilots ran on the same
+    pixels: the average of *their* means, not of path's own (path's own where there are none).
+
+    A heavy-tailed pilot normalises its own fireflies away against its own means: a firefly F
+    among n samples of a pixel gives s² ≈ F²/n and a mean ≈ F/n, so the pixel's s²/R² stays
+    near n however rare and bright F is. On caustic.xml at 256² path's relative variance read
+    1.6–2.2 against its own means and 1.9–3.9 against the average of its and rex's (the
+    reference every pilot had until session 9), against about 36 from its curve in the
+    harness; against rex's means alone, 5.9–72 (six pilot pairs, ``tools/pilot_variance.py``).
+    The structures' pilots are smooth where path's is heavy-tailed, and a few per cent of
+    bias in their means moves R² by as much, so the candidates keep the pooled reference.
+    On the Cornell box (radiosity_gather) and the office (spike_gather) path's variance is
+    the same within 5 % against either reference."""
+    if not others:
+        return pixel_means(path_values)
+    return np.mean([pixel_means(v) for v in others], axis=0)

@@ -34,3 +34,22 @@ def test_relative_variance_is_the_relmse_of_one_sample():
     values = ref[:, None, :] + rng.normal(0.0, 0.5, size=(500, 200, 3))
     # s² / (R² + ε) = 0.25 / 4.01
     assert pl.relative_variance(values, ref) == pytest.approx(0.25 / 4.01, rel=0.03)
+
+
+def test_path_is_measured_against_the_other_pilots_so_its_fireflies_are_not_normalised_away():
+    """Path: value 1 with probability 1 - 1/1000, else a firefly of 1001 (mean 2), 144 samples
+    a pixel; a smooth candidate: N(2, 0.1²). Against its own means, or the average of its and
+    the candidate's, path's relative variance is capped near n per firefly pixel; against the
+    candidate's means it is near the truth."""
+    rng = np.random.default_rng(3)
+    pixels, n = 2000, 144
+    fire = rng.random((pixels, n, 1)) < 1e-3
+    path = np.repeat(np.where(fire, 1001.0, 1.0), 3, axis=2)
+    cand = rng.normal(2.0, 0.1, (pixels, n, 3))
+    true_v = (1e-3 * 999e-3 * 1000.0**2) / (2.0**2 + 0.01)  # Bernoulli variance / (R² + ε)
+    own = pl.relative_variance(path, pl.pixel_means(path))
+    plain = pl.relative_variance(path, 0.5 * (pl.pixel_means(path) + pl.pixel_means(cand)))
+    against_others = pl.relative_variance(path, pl.path_reference(path, [cand]))
+    assert own < 0.3 * true_v and plain < 0.5 * true_v
+    assert against_others == pytest.approx(true_v, rel=0.2)
+    assert np.array_equal(pl.path_reference(path, []), pl.pixel_means(path))  # no others
