@@ -136,9 +136,10 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
        the photons the budget pays for first); else built and piloted on the same pixels;
     5. variances again against the pilots' pooled pixel means (path's against the other
-       pilots' means: :func:`~mi_twopass.compose.pilot.path_reference`); the lowest score, with the pilot and
-       the prepasses built counted as spent for every candidate (:func:`cost.spend`), wins,
-       once a winner that may be biased has passed the bias test of :func:`check_bias`."""
+       pilots' means: :func:`~mi_twopass.compose.pilot.path_reference`); the lowest score,
+       with the pilot and the prepasses built counted as spent for every candidate
+       (:func:`cost.spend`), wins, once a winner that may be biased has passed the bias test
+       of :func:`check_bias`."""
     spp = max(int(render_spp or sensor.sampler().sample_count()), 1)
     t_start = time.perf_counter()
     build_seconds = 0.0

@@ -224,11 +224,10 @@ def spend(measured: dict, seconds: float) -> None:
     """Mark building as over: every candidate's predicted render time is ``seconds`` (the
     pilot and all prepasses, spent whichever renders) plus its own samples. A candidate is
     built on the promise that its prepass pays (its score with its own prepass); once it is
-    built, that prepass is sunk, and scoring it again would throw away a structure already
-    paid for. Before session 9 twopass did: on many_lights at 256², 64 spp, it built the
-    spike lists (1.8 s with the pilot), found path's render time plus nothing ahead of the
-    lists' plus their prepass, and rendered path: relMSE 0.18 in 2.7 s where path alone had
-    0.18 in 0.8 s."""
+    built, that prepass is sunk, and scoring it again could throw away a structure already
+    paid for (until session 9 twopass scored it so; in that session's bench at 256² no
+    choice turned on it: where path won over a built structure, it won on variance or bias
+    alone)."""
     for m in measured.values():
         m.sunk_seconds = seconds
 

@@ -4,8 +4,8 @@ For each integrator: render at doubling spp (1, 2, 4, ...), each point with a *f
 its prepass is paid again and counted; the point's cost is the wall time of ``mi.render`` with the
 prepass, stopped after ``dr.sync_thread()``. Before the timed points, each integrator renders one
 untimed 1-spp warm-up so Dr.Jit's kernel compilation is not charged to the first point (it is the
-same for every integrator; ``twopass`` plans it as a long render, :func:`warm_up`). Error is relMSE (ε = 0.01) and FLIP against Mitsuba's ``path`` at high
-spp (cached). Points stop when the next one (about twice the last) would not fit in the budget.
+same for every integrator; ``twopass`` plans it as a long render, :func:`warm_up`). Error is
+relMSE (ε = 0.01) and FLIP against Mitsuba's ``path`` at high spp (cached). Points stop when the next one (about twice the last) would not fit in the budget.
 
 Reported per integrator: the (time, relMSE, FLIP) curve; the equal-time relMSE ratio against
 ``path`` measured in the same run (path's error at the method's time, interpolated log-log, over

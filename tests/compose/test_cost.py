@@ -77,9 +77,9 @@ def test_score_is_predicted_error_times_seconds_and_prepass_amortises():
 
 
 def test_a_built_prepass_is_spent_whichever_candidate_renders():
-    """many_lights at 256², 64 spp (session 9's bench): the lists' prepass was more than the
-    render, so path scored lower with it counted, though the lists were built and had 16x
-    less variance per sample. Once built, every candidate carries the same spent seconds."""
+    """A structure whose prepass is most of a short render scores below path with that
+    prepass counted, though it is built and has 15x less variance per sample. Once built,
+    every candidate carries the same spent seconds."""
     path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.04, variance=9.0, bias2=0.0,
                          mean_ratio=1.0)
     lists = cost.Measured(prepass_seconds=3.0, seconds_per_spp=0.08, variance=0.6, bias2=0.0,
