@@ -50,15 +50,17 @@ class TwoPassChooser(TwoPassIntegrator):
         2. for each composition the forced choices allow, by its best case (path's variance
            less the parts it serves, at path's cost, no prepass): skip it when the best case
            cannot beat the best measured so far by 1.25×, once the pilot and the prepasses
-           so far leave no room for its prepass in its budget (half its best case's
-           break-even prepass time, between ``pilot_budget`` and all of path's predicted
-           render time: :func:`mi_twopass.compose.cost.prepass_budget`), or where the scene
-           gives it nothing
-           (one emitter for spike lists, no Lambertian surface, a finite max_depth for a far
+           so far leave no room for its prepass in its budget (for the first one built, half
+           its best case's break-even prepass time, between ``pilot_budget`` and all of
+           path's predicted render time: :func:`mi_twopass.compose.cost.prepass_budget`;
+           for the others ``pilot_budget``), or where the scene gives it nothing (one
+           emitter for spike lists, no Lambertian surface, a finite max_depth for a far
            field); else build its prepass and pilot it on the same pixels
-        3. take the candidate of least predicted relMSE × seconds,
-           (prepass + N·t) × (v/N + b²), N the render's samples per pixel, b² its squared
-           relative bias against the path pilot, pixel by pixel
+        3. take the candidate of least predicted relMSE × seconds, (S + N·t) × (v/N + b²),
+           N the render's samples per pixel, S the seconds the pilot and the prepasses have
+           taken (spent whichever renders), b² its squared relative bias against the path
+           pilot, pixel by pixel; path's v is measured against the other pilots' pixel
+           means, which its own fireflies do not inflate
         4. where it reads a cache and a bias too small for its pilot to see could still make
            it lose to the runner-up, test it against path again with more samples per pixel
            (within 5 % of path's predicted render time) and choose again
