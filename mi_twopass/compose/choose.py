@@ -207,8 +207,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     for c in sorted(others, key=lambda c: decision.best_case[c.name]):
         # the break-even budget for the first structure only: once one is measured, the
         # others' best cases (near 0 for a composition that serves every part) promise
-        # nothing the measured one has not, and many_lights at 256², 64 spp, built the
-        # radiance cache's 1.25 s beside the spike lists and rendered with the lists
+        # nothing the measured one has not (with it for every candidate, many_lights at
+        # 256², 64 spp, built the radiance cache beside the spike lists it then rendered)
         first = not any(n != path_row.name for n in measured)
         share = (cost.prepass_budget(decision.best_case[c.name], path_m.score(spp),
                                      budget_factor) if first else budget_factor)
@@ -278,7 +278,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     decision.measured = measured
     cost.spend(measured, time.perf_counter() - t_start)
     name = check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, decision,
-                      cost.CHECK_BUDGET * spp * path_m.seconds_per_spp)
+                      cost.CHECK_BUDGET * path_seconds)
     decision.chosen = runs[name][0]
     pilot_seconds = time.perf_counter() - t_start - build_seconds
     return Choice(decision, runs[name][1], {"pilot": pilot_seconds,
