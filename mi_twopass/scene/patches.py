@@ -460,15 +460,22 @@ class Patches:
         u = mi.Point2f(u2)
         start = dr.gather(mi.UInt32, t["patch_tri_start"], pid, active)
         cnt = dr.gather(mi.UInt32, t["patch_tri_count"], pid, active)
-        tri_patch, cdf = t["tri_patch"], t["tri_cdf"]
+        cdf = t["tri_cdf"]
 
-        def pred(i):  # (tri_patch, cdf) <= (pid, u.x) lexicographically
-            tp = dr.gather(mi.UInt32, tri_patch, i, active)
-            c = dr.gather(mi.Float, cdf, i, active)
-            return (tp < pid) | ((tp == pid) & (c <= u.x))
+        # the first of the patch's own triangles whose cumulative area fraction exceeds u.x: a
+        # binary search in [start, start + cnt) as a symbolic loop (most patches have one or
+        # two triangles, so it ends at once; no table size enters the kernel)
+        def cond(lo, hi):
+            return lo < hi
 
-        tri = dr.binary_search(0, t["n_tri"] - 1, pred)
-        tri = dr.clip(tri, start, start + dr.maximum(cnt, 1) - 1)
+        def body(lo, hi):
+            mid = lo + (hi - lo) // 2
+            below = dr.gather(mi.Float, cdf, mid, lo < hi) <= u.x
+            return dr.select(below, mid + 1, lo), dr.select(below, hi, mid)
+
+        end = start + dr.select(active, dr.maximum(cnt, 1) - 1, 0)
+        tri, _ = dr.while_loop((mi.UInt32(start), mi.UInt32(end)), cond, body,
+                               label="patch_sample_triangle")
         c0 = dr.select(tri > start, dr.gather(mi.Float, cdf, tri - 1, active & (tri > start)), 0.0)
         c1 = dr.gather(mi.Float, cdf, tri, active)
         ux = dr.clip((u.x - c0) / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0 - 2.0 ** -24)
@@ -963,14 +970,13 @@ def _make_tables(patches, parts, tri_v, tri_p, tri_n):
 
     tri_v32 = f32(tri_v, (1, 3, 3))
     t = dict(
-        n_reg=n_reg, n_tri=max(T, 1),
+        n_reg=n_reg,
         kind=mi.UInt32(kind), back_offset=mi.UInt32(back_offset),
         face_offset=mi.UInt32(face_offset), grid_base=mi.UInt32(grid_base),
         grid_nu=mi.UInt32(grid_nu), grid_nv=mi.UInt32(grid_nv),
         face_patch=mi.UInt32(face_patch), face_sub=mi.UInt32(face_sub),
         sub_res=mi.UInt32(np.maximum(sub_res, 1)), sub_v0=pt(sub_v0, mi.Point3f),
         sub_g1=pt(sub_g1, mi.Vector3f), sub_g2=pt(sub_g2, mi.Vector3f),
-        tri_patch=mi.UInt32(tri_p.astype(np.uint32) if T else np.full(1, INVALID, np.uint32)),
         tri_cdf=mi.Float(f32(cdf, (1,))),
         tri_v0=pt(tri_v32[:, 0], mi.Point3f),
         tri_e1=pt(tri_v32[:, 1] - tri_v32[:, 0], mi.Vector3f),
