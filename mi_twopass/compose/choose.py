@@ -13,8 +13,8 @@ import numpy as np
 
 from ..scene.lambertian import is_lambertian
 from . import cost
-from .pilot import (PilotSettings, choose_pixels, path_reference, pilot, pixel_means,
-                    relative_variance, run_samples, samples_array)
+from .pilot import (RUNS, PilotSettings, choose_pixels, path_reference, pilot, pilot_samples,
+                    pixel_means, relative_variance, run_samples, samples_array)
 
 
 class Choice:
@@ -130,7 +130,9 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     many times path's predicted render time. Order of work:
 
     1. nothing to measure when one row is allowed: build it;
-    2. no pilot where no prepass can fit the budget (:func:`cost.none_fit`);
+    2. no pilot where it would cost more than :data:`cost.PILOT_SHARE_MAX` of the render
+       (:func:`cost.pilot_too_dear`) or no prepass can fit the largest budget a candidate may
+       get (:func:`cost.none_fit`, :func:`cost.largest_budget`);
     3. the pilot path trace, split into direct, caustic and indirect variance;
     4. per row, cheapest best case first: skipped for a structural reason, a best case that
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
@@ -157,16 +159,20 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     path_row = cost.COMPOSITIONS[0]
     path_integ = candidate(path_row)
     if path_row in allowed:
-        # no pilot where no prepass can fit the budget whatever path's cost per sample;
-        # rexes, which can be cut to 2^16 photons, count only where nothing else could be
-        # built (alone they would start a pilot at 32 spp of a 128² film, where its 147,456
-        # samples cost more than any rexes that small could save: the office's and
-        # window_interior's twopass fell to 0.93x and 0.84x path at 128²)
+        # no pilot where it would cost too large a share of the render (all that is lost
+        # where nothing pays), nor where no prepass can fit the largest budget a candidate
+        # may get, whatever path's cost per sample; rexes, which can be cut to 2^16 photons,
+        # count only where nothing else could be built (alone they would start a pilot at
+        # 32 spp of a 128² film, where its 147,456 samples cost more than any rexes that
+        # small could save: the office's and window_interior's twopass fell to 0.93x and
+        # 0.84x path at 128²)
         prepassed = [c for c in allowed if c.needs_prepass]
         others = [c for c in prepassed if c.plugin != "rex"]
-        too_big = cost.none_fit(
+        path_samples = spp * film_pixels
+        dear = cost.pilot_too_dear(pilot_samples(settings, pixels), path_samples, budget_factor)
+        too_big = {c.name: dear for c in prepassed} if dear is not None else cost.none_fit(
             {c.name: cost.least_light_paths(candidate(c)) for c in others or prepassed},
-            spp * film_pixels, budget_factor)
+            path_samples, cost.largest_budget(budget_factor))
         if too_big is not None and others:
             for c in prepassed:
                 too_big.setdefault(c.name, "no pilot: rexes cut to the budget do not start "
@@ -178,10 +184,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     parts_out = []
     path_run = pilot(scene, sensor, pixels, settings, path_sum_estimator(path_integ, parts_out),
                      seed)
-    parts = [np.concatenate([samples_array(p[k], pixels, n) for p, n in
-                             zip(parts_out, (settings.samples,
-                                             4 * settings.samples,
-                                             4 * settings.samples))], axis=1)
+    parts = [np.concatenate([samples_array(p[k], pixels, r * settings.samples)
+                             for p, r in zip(parts_out, RUNS)], axis=1)
              for k in range(3)]
     ref = pixel_means(path_run.values)
     variance = cost.VarianceParts(

@@ -87,6 +87,12 @@ PILOT_BUDGET = 0.25
 #: of the gain and the prepass floor a lower bound of the cost, so both keep a margin
 BREAK_EVEN_SHARE = 0.5
 BREAK_EVEN_MAX = 1.0
+#: the pilot starts only where its samples (every candidate's pilot runs as many as path's)
+#: are at most this share of the render's path samples, at the default ``pilot_budget`` (in
+#: proportion to it otherwise): it is all twopass loses where nothing pays. The office at
+#: 256² reaches relMSE 0.01 near 16 spp with the spike lists, where the pilot's 147,456
+#: samples are 14 % of the render's; the furnace reaches it with path at 4 spp (56 %)
+PILOT_SHARE_MAX = 0.15
 #: a prepass is predicted to cost at least this many path samples' time per light path it
 #: traces (radiosity particles, rex photons); measured on the corpus at 128²: 2.4 (office,
 #: window_interior) to 38 (furnace), docs/design.md "twopass"
@@ -269,12 +275,19 @@ def prepass_floor(light_path_count: int, path: Measured, film_pixels: int) -> fl
     return PREPASS_FLOOR_FACTOR * light_path_count * path.seconds_per_spp / max(film_pixels, 1)
 
 
+def largest_budget(pilot_share: float) -> float:
+    """The largest share of path's predicted render time any candidate may spend
+    (:func:`prepass_budget`'s cap): what a prepass's floor must fit for a pilot to be worth
+    starting."""
+    return 0.0 if pilot_share <= 0.0 else max(BREAK_EVEN_MAX, pilot_share)
+
+
 def none_fit(light_path_counts: dict, path_samples: int, budget_share: float):
-    """Before any pilot: the budget is ``budget_share`` × the render's ``path_samples`` (film
-    pixels × spp) path samples' time and a prepass's floor is :data:`PREPASS_FLOOR_FACTOR`
-    path samples per light path (:func:`prepass_floor`), so whether a composition's floor fits
-    does not depend on path's cost per sample. Returns {name: reason} when none fits (the
-    render is path, with no pilot), else None."""
+    """Before any pilot: the budget is ``budget_share`` (:func:`largest_budget`) × the
+    render's ``path_samples`` (film pixels × spp) path samples' time and a prepass's floor is
+    :data:`PREPASS_FLOOR_FACTOR` path samples per light path (:func:`prepass_floor`), so
+    whether a composition's floor fits does not depend on path's cost per sample. Returns
+    {name: reason} when none fits (the render is path, with no pilot), else None."""
     limit = budget_share * path_samples / PREPASS_FLOOR_FACTOR
     if any(n < limit for n in light_path_counts.values()):
         return None
@@ -282,6 +295,17 @@ def none_fit(light_path_counts: dict, path_samples: int, budget_share: float):
                    f"{PREPASS_FLOOR_FACTOR:g} path samples' time each, more than "
                    f"{budget_share:g} x the render's {path_samples} path samples")
             for name, n in light_path_counts.items()}
+
+
+def pilot_too_dear(pilot_samples: int, path_samples: int, pilot_share: float = PILOT_BUDGET):
+    """Before any pilot: a reason not to start it where its ``pilot_samples`` are more than
+    :data:`PILOT_SHARE_MAX` × ``pilot_share`` / :data:`PILOT_BUDGET` of the render's
+    ``path_samples``, else None."""
+    share = PILOT_SHARE_MAX * pilot_share / PILOT_BUDGET
+    if pilot_samples <= share * path_samples:
+        return None
+    return (f"no pilot: its {pilot_samples} samples per candidate would cost more than "
+            f"{share:.3g} x the render's {path_samples} path samples")
 
 
 def prepass_budget(best_case: float, path_score: float, pilot_share: float) -> float:

@@ -122,16 +122,25 @@ class PilotRun:
         return self.seconds_per_lane * film_pixels
 
 
+#: a pilot's runs, in multiples of ``PilotSettings.samples`` per pixel (:func:`pilot`)
+RUNS = (1, 4, 4)
+
+
+def pilot_samples(settings: PilotSettings, pixels: PilotPixels) -> int:
+    """The camera samples one candidate's pilot traces: its pixels × (M + 4M + 4M)."""
+    return len(pixels.index) * settings.samples * sum(RUNS)
+
+
 def pilot(scene, sensor, pixels: PilotPixels, settings: PilotSettings, estimator, seed: int):
     """Run ``estimator`` with M, 4M and 4M samples per pixel (see the module docstring) →
     :class:`PilotRun`."""
     m = settings.samples
-    v0, _ = run_samples(scene, sensor, pixels, m, estimator, seed)  # compiles the kernels
-    v1, t1 = run_samples(scene, sensor, pixels, 4 * m, estimator, seed + 1)
-    v2, t2 = run_samples(scene, sensor, pixels, 4 * m, estimator, seed + 2)
-    lanes = len(pixels.index) * 4 * m
-    return PilotRun(values=np.concatenate([v0, v1, v2], axis=1),
-                    seconds_per_lane=min(t1, t2) / lanes, seconds=t1 + t2, lanes=lanes * 9 // 4)
+    # the first run compiles the kernels; the faster of the others is timed
+    runs = [run_samples(scene, sensor, pixels, k * m, estimator, seed + i)
+            for i, k in enumerate(RUNS)]
+    timed = min(t / (len(pixels.index) * k * m) for (_, t), k in zip(runs[1:], RUNS[1:]))
+    return PilotRun(values=np.concatenate([v for v, _ in runs], axis=1), seconds_per_lane=timed,
+                    seconds=sum(t for _, t in runs[1:]), lanes=pilot_samples(settings, pixels))
 
 
 def relative_variance(values: np.ndarray, reference: np.ndarray, eps: float = RELMSE_EPS):

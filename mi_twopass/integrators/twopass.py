@@ -44,6 +44,10 @@ class TwoPassChooser(TwoPassIntegrator):
     lowest error for its time, building only the structures that may pay (the table of
     compositions and the cost model: :mod:`mi_twopass.compose.cost`)::
 
+        0. no pilot (path renders) where its samples would be more than 15 % of the
+           render's (in proportion to ``pilot_budget``) or no prepass's least cost fits
+           path's predicted render time (the most the first candidate may spend):
+           :func:`mi_twopass.compose.cost.pilot_too_dear`, :func:`~mi_twopass.compose.cost.none_fit`
         1. pilot path trace (``pilot_pixels`` pixels × 144 samples, Mitsuba's path estimator)
            with its light split into direct, caustic (L S+ D ...) and other indirect parts,
            each part's relative variance measured
@@ -101,8 +105,8 @@ class TwoPassChooser(TwoPassIntegrator):
        - The least share of the time ``path`` is predicted to need for the render that the
          pilot and the prepasses may spend, a candidate's own prepass included (default:
          0.25; a candidate whose best case is far ahead of path may spend more, up to that
-         whole time; 0: path only, unless a choice is forced). Where no prepass fits this
-         share, there is no pilot.
+         whole time; 0: path only, unless a choice is forced). The pilot starts only where
+         its samples are at most 0.6 × this share of the render's (15 % at the default).
      * - debug
        - |string|
        - "none"; "direct_technique" colours the first non-delta hit orange where a spike list

@@ -128,6 +128,27 @@ def test_none_fit_decides_without_a_pilot_only_when_every_floor_is_too_big():
     assert cost.none_fit(counts, 16384 * 256, 0.5) is None  # 1 M > 262144: a may fit
 
 
+def test_the_pilot_gate_fits_the_largest_budget_and_weighs_the_pilots_own_samples():
+    """Before the pilot, a prepass must fit the most any candidate may spend (the break-even
+    cap, all of path's predicted time), not the quarter every candidate keeps: the office at
+    256² reached relMSE 0.01 near 16 spp with spike lists, where twopass ran no pilot. The
+    pilot itself (every candidate's as many samples as path's) starts only where its samples
+    are at most PILOT_SHARE_MAX of the render's, in proportion to pilot_budget."""
+    assert cost.largest_budget(cost.PILOT_BUDGET) == cost.BREAK_EVEN_MAX
+    assert cost.largest_budget(4.0) == 4.0 and cost.largest_budget(0.0) == 0.0
+    office_16 = 256 * 256 * 16
+    spike = {"spike": 262144}  # its radiosity particles: floor 2 x 262144 samples
+    assert cost.none_fit(spike, office_16, cost.PILOT_BUDGET) is not None  # the old gate
+    assert cost.none_fit(spike, office_16, cost.largest_budget(cost.PILOT_BUDGET)) is None
+    pilot = 1024 * 144
+    assert pilot <= cost.PILOT_SHARE_MAX * office_16
+    assert cost.pilot_too_dear(pilot, office_16) is None
+    why = cost.pilot_too_dear(pilot, 256 * 256 * 8)  # 8 spp: 28 %
+    assert why.startswith("no pilot") and "147456 samples" in why
+    assert cost.pilot_too_dear(pilot, 256 * 256 * 8, 4 * cost.PILOT_BUDGET) is None
+    assert cost.pilot_too_dear(pilot, 10**9, 0.0) is not None  # pilot_budget 0: path only
+
+
 def test_a_hidden_bias_decides_only_where_the_affordable_bias_is_below_the_detection_limit():
     m = cost.Measured(prepass_seconds=1.0, seconds_per_spp=0.01, variance=0.1, bias2=0.0,
                       mean_ratio=1.0, bias_se=1e-4)

@@ -26,6 +26,7 @@ def test_pilot_of_a_constant_estimator_has_zero_variance_and_positive_cost(tiny_
     assert np.allclose(run.values, 0.25)  # box filter, unit importance weights
     assert pl.relative_variance(run.values, pl.pixel_means(run.values)) == pytest.approx(0.0)
     assert run.seconds_per_lane > 0
+    assert run.lanes == pl.pilot_samples(pl.PilotSettings(pixels=64, samples=4), px) == 64 * 36
 
 
 def test_relative_variance_is_the_relmse_of_one_sample():
