@@ -22,7 +22,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..prepass.radiosity import RadiositySettings
+from ..prepass.radiosity import VL_CONTRAST, RadiositySettings
 from .light_samplers import EmitterSampler
 from .pathtrace import by_component
 
@@ -485,7 +485,8 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
 class FarGatherIntegrator(TwoPassIntegrator):
     """An integrator whose gather rays longer than ``r_thresh`` read a radiosity prepass (GSII,
     Zimmerman & Shirley §2.5): reads ``r_thresh`` / ``r_thresh_rel`` and the prepass's budget
-    (``max_patches``, ``particles_per_patch``, ``elements_per_patch``, ``vl_threshold``) with the
+    (``max_patches``, ``particles_per_patch``, ``elements_per_patch``, ``vl_threshold``,
+    ``vl_contrast``) with the
     subclass's defaults, and resolves ``r_thresh`` for a scene.
 
     Its XML parameters, beside the budget's (each subclass's manual gives those defaults):
@@ -509,6 +510,7 @@ class FarGatherIntegrator(TwoPassIntegrator):
             if "r_thresh" in props else None
         self.radiosity = read_radiosity_budget(props, *self.RADIOSITY_DEFAULTS)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
+        self.vl_contrast = read_float(props, "vl_contrast", VL_CONTRAST, minimum=0.0)
 
     @property
     def far_gather_exact(self) -> bool:

@@ -87,6 +87,11 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
        - |float|
        - Reclassify patches with B_r ≥ vl_threshold × max B_r as virtual luminaires
          (default: 0.5; a value > 1 disables reclassification).
+     * - vl_contrast
+       - |float|
+       - ... and only those with B_r ≥ vl_contrast × the area-weighted mean B_r of the cached
+         patches (default: 4; 0: GSII's rule alone, whose count follows the noise of the
+         brightest patch: :data:`mi_twopass.prepass.radiosity.VL_CONTRAST`).
      * - max_depth, rr_depth, seed, component
        - 
        - As every mi_twopass integrator: path length (-1: unbounded), Russian roulette start,
@@ -116,7 +121,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         """The budget read at load, with GSII's virtual-luminaire threshold (∞ where the far
         gather is off) and the simplified prepass scene."""
         return replace(self.radiosity, vl_threshold=self.vl_threshold_used,
-                       prepass_scene=self.prepass_scene_path)
+                       vl_contrast=self.vl_contrast, prepass_scene=self.prepass_scene_path)
 
     # -- prepass ----------------------------------------------------------------------------
     def prepass(self, scene, seed):

@@ -223,6 +223,11 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
        - |float|
        - Patches with B_r ≥ vl_threshold × max B_r become sources (virtual luminaires; default:
          0.5; a value > 1 disables reclassification).
+     * - vl_contrast
+       - |float|
+       - ... and only those with B_r ≥ vl_contrast × the area-weighted mean B_r of the cached
+         patches (default: 4; 0: GSII's rule alone, whose count follows the noise of the
+         brightest patch: :data:`mi_twopass.prepass.radiosity.VL_CONTRAST`).
      * - max_depth, rr_depth, seed, component
        -
        - As every mi_twopass integrator: path length (-1: unbounded), Russian roulette start,
@@ -278,7 +283,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         return (self.grid_res, self.e_high_rel, self.e_low_rel, self.e_high, self.e_low,
                 self.influence_rel, self.influence, self.visibility_max_rays,
                 self.visibility_occluded_rays, self.camera_res,
-                self.cell_points, self.radiosity, self.vl_threshold_used,
+                self.cell_points, self.radiosity, self.vl_threshold_used, self.vl_contrast,
                 self.gather_cells, self.r_thresh_rel, self.r_thresh_abs)
 
     def spike_settings(self, scene) -> SpikeSettings:
@@ -288,7 +293,8 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
                              visibility_max_rays=self.visibility_max_rays,
                              visibility_occluded_rays=self.visibility_occluded_rays,
                              gather_reach=self.r_thresh(scene) if self.gather_cells else 0.0,
-                             vl_threshold=self.vl_threshold_used, e_high_rel=self.e_high_rel,
+                             vl_threshold=self.vl_threshold_used,
+                             vl_contrast=self.vl_contrast, e_high_rel=self.e_high_rel,
                              e_low_rel=self.e_low_rel, E_high=self.e_high, E_low=self.e_low)
 
     # -- prepass ----------------------------------------------------------------------------

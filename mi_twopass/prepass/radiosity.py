@@ -640,6 +640,21 @@ def guided_particles(n_particles: int, noise_per_particle: float) -> int:
 MIN_PARTICLES = 1 << 16
 
 
+#: a patch is reclassified only where its B_r is at least this many times the area-weighted
+#: mean B_r of the cached (diffuse, reflecting) patches: a far gather ray reading a patch near
+#: that mean has little variance, explicit sampling pays for small bright reflectors only. With
+#: GSII's rule alone (B_r ≥ vl_threshold × max B_r) the count followed the noise of the
+#: brightest patch: on scenes_xml/office.xml (max/mean 2.9–8.0 over four solve seeds) 1, 187, 3
+#: or 300 patches, window_interior's sunlit floor 327–350 (13 % of the area); with many of them
+#: spike_gather's relMSE at 16 and 32 spp (256²) was 1.4–1.8× that with one, radiosity_gather's
+#: equal-time ratio on the office 1.73 against 3.49 with none (``bench --integrators
+#: radiosity_gather,radiosity_gather:vl_threshold=2``). With 4: the office 0–3, window_interior
+#: 1–3, the Cornell box's ceiling 38–40 (as before, where they help: equal-spp 2.44 against
+#: 1.59 without), veach-bidir's lamp 18 (as before), many_lights 2–4 (as before)
+#: (``tools/virtual_luminaires.py``)
+VL_CONTRAST = 4.0
+
+
 @dataclass(frozen=True)
 class RadiositySettings:
     """What the radiosity prepass reads from an integrator's XML (bounds checked there, by
@@ -653,23 +668,46 @@ class RadiositySettings:
     #: GSII's reclassification: patches whose reflected radiosity is at least this fraction of
     #: the largest become virtual luminaires (∞: none)
     vl_threshold: float = math.inf
+    #: ... and at least this many times the area-weighted mean B_r of the cached patches
+    #: (:func:`reclassified_patches`)
+    vl_contrast: float = VL_CONTRAST
     #: a simplified scene file the prepass runs on instead of the render's (GSII §2.5)
     prepass_scene: str = ""
 
 
+
+
+def reclassified_patches(Br, area, is_diffuse, vl_threshold: float,
+                         contrast: float = VL_CONTRAST) -> np.ndarray:
+    """Ids of the patches GSII reclassifies as virtual luminaires (Zimmerman & Shirley §2.5):
+    diffuse (cached) patches of reflected radiosity ``Br`` (one value per patch) with
+    B_r ≥ ``vl_threshold`` × max B_r and B_r ≥ ``contrast`` × the area-weighted mean B_r of
+    the cached patches (:data:`VL_CONTRAST`); none for a non-finite threshold."""
+    Br = np.asarray(Br, np.float64)
+    area = np.asarray(area, np.float64)
+    is_diffuse = np.asarray(is_diffuse, bool)
+    if not Br.size or not math.isfinite(vl_threshold):
+        return np.zeros(0, np.uint32)
+    ok = is_diffuse & (Br > 0) & (area > 0)
+    mean = float(np.sum(Br[ok] * area[ok]) / np.sum(area[ok])) if ok.any() else 0.0
+    limit = max(vl_threshold * Br.max(), float(contrast) * mean)
+    return np.nonzero(ok & (Br >= limit))[0].astype(np.uint32)
+
+
 class VirtualLuminaires:
     """GSII's reclassified bright reflectors (Zimmerman & Shirley §2.5) as a light sampler: a
-    power-proportional choice among the patches with B_r ≥ ``vl_threshold`` × max B_r
-    (Lambertian, uncut patches only: the cached ones). :meth:`sample` and :meth:`pmf` agree
+    power-proportional choice among the patches :func:`reclassified_patches` picks (B_r ≥
+    ``vl_threshold`` × max B_r and ≥ ``vl_contrast`` × the mean; Lambertian, uncut patches
+    only: the cached ones). :meth:`sample` and :meth:`pmf` agree
     (tests/prepass/test_radiosity.py)."""
 
-    def __init__(self, solution: RadiositySolution, vl_threshold: float):
+    def __init__(self, solution: RadiositySolution, vl_threshold: float,
+                 vl_contrast: float = VL_CONTRAST):
         patches = solution.patches
         Br = np.asarray(solution.B_reflected).mean(axis=1)
         power = Br * np.asarray(patches.area)
-        limit = vl_threshold * Br.max() if Br.size and math.isfinite(vl_threshold) else math.inf
-        chosen = np.nonzero((Br >= limit) & (power > 0) & (Br > 0)
-                            & patches.is_diffuse)[0].astype(np.uint32)
+        chosen = reclassified_patches(Br, patches.area, patches.is_diffuse, vl_threshold,
+                                      vl_contrast)
         self.count = int(chosen.size)
         is_vl = np.zeros(patches.count + 1, dtype=bool)
         is_vl[chosen] = True
@@ -799,10 +837,12 @@ def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
     (``twopass``'s candidates): a solve with the same budget and seed is taken from it, and
     only the virtual luminaires (the one setting the solve does not read) are made anew."""
     t0 = time.perf_counter()
-    key = (replace(settings, vl_threshold=math.inf), int(seed), id(sensor))
+    key = (replace(settings, vl_threshold=math.inf, vl_contrast=VL_CONTRAST), int(seed),
+           id(sensor))
     done = memo.get(key) if memo is not None else None
     if done is not None:
-        return replace(done, virtual=VirtualLuminaires(done.solution, settings.vl_threshold),
+        return replace(done, virtual=VirtualLuminaires(done.solution, settings.vl_threshold,
+                                                       settings.vl_contrast),
                        seconds=time.perf_counter() - t0, reused=True)
     simplified = bool(settings.prepass_scene)
     target = load_scene(settings.prepass_scene) if simplified else scene
@@ -814,7 +854,7 @@ def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
     n_particles = guided_particles(n_particles, noise)
     solution = solve_radiosity(target, patches, n_particles=n_particles, seed=seed,
                                elements=elements, progress=bool(progress), guide=guide)
-    virtual = VirtualLuminaires(solution, settings.vl_threshold)
+    virtual = VirtualLuminaires(solution, settings.vl_threshold, settings.vl_contrast)
     pre = RadiosityPrepass(scene=target, solution=solution, virtual=virtual,
                            seconds=time.perf_counter() - t0, simplified=simplified,
                            guide_cells=guide.cells.count if guide is not None else 0,

@@ -6,8 +6,9 @@ The structure behind the ``spike_gather`` integrator, built once per scene and s
 with the emitter's own ``sample_direction``, pdf in solid angle), point and spot lights, and the
 *global* (infinite) emitters: directional, constant and envmap. The radiosity solution's bright
 reflectors become sources too, as in GSII's reclassification (§2.5, §3.3 step 3): patches whose
-reflected radiosity is at least ``vl_threshold`` × the brightest patch's ("virtual luminaires",
-VL). Per source we keep a bounding sphere (centre, radius), an unoccluded *intensity proxy*
+reflected radiosity is at least ``vl_threshold`` × the brightest patch's and ``vl_contrast`` × the
+mean (:func:`mi_twopass.prepass.radiosity.reclassified_patches`; "virtual luminaires", VL). Per
+source we keep a bounding sphere (centre, radius), an unoccluded *intensity proxy*
 I_i [W/sr] (or an irradiance for infinite emitters), an optional axis (the normal of a planar
 one-sided source, the direction of a directional light) and the emittance E_i [W/m²] that
 decides its band (§4):
@@ -112,7 +113,7 @@ from ..host_arrays import columns
 from ..progress import progress as progress_bar
 from ..seeds import numpy_rng, splitmix64
 from ..tables import Tables
-from .radiosity import RadiositySettings
+from .radiosity import VL_CONTRAST, RadiositySettings, reclassified_patches
 from .radiosity import build as build_radiosity
 
 INVALID = 0xFFFFFFFF
@@ -426,8 +427,10 @@ def _emitter_properties(scene, seed, samples=SOURCE_SAMPLES):
 
 
 def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_rel=0.1,
-                  E_high=None, E_low=None, seed=0, samples=SOURCE_SAMPLES) -> Sources:
-    """All sources of ``scene`` (emitters, then the VLs of ``solution``) and their bands.
+                  E_high=None, E_low=None, seed=0, samples=SOURCE_SAMPLES,
+                  vl_contrast=VL_CONTRAST) -> Sources:
+    """All sources of ``scene`` (emitters, then the VLs of ``solution``:
+    :func:`~mi_twopass.prepass.radiosity.reclassified_patches`) and their bands.
 
     ``E_high``/``E_low`` default to ``e_high_rel``/``e_low_rel`` × the median emittance of the
     scene's area lights (1 W/m² when there is none)."""
@@ -445,8 +448,8 @@ def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_
         N = patches.count
         Br = _lum(solution.B_reflected)
         power = Br * np.asarray(patches.area)
-        limit = vl_threshold * Br.max() if Br.size and math.isfinite(vl_threshold) else math.inf
-        vl = np.nonzero((Br >= limit) & (power > 0) & (Br > 0) & patches.is_diffuse)[0]
+        vl = reclassified_patches(Br, patches.area, patches.is_diffuse, vl_threshold,
+                                  vl_contrast).astype(np.int64)
         tri_p = np.asarray(patches.tri_patch, dtype=np.int64)
         tv = np.asarray(patches.tri_vertices, dtype=np.float64)
         rad = np.zeros(N)
@@ -952,6 +955,7 @@ class SpikeSettings:
     gather_reach: float = 0.0  # > 0: cells where near gather rays (shorter than this) land too
     # the sources (build_sources): virtual-luminaire threshold, E_high / E_low relative or absolute
     vl_threshold: float = 0.5
+    vl_contrast: float = VL_CONTRAST
     e_high_rel: float = 4.0
     e_low_rel: float = 0.1
     E_high: float | None = None
@@ -1293,14 +1297,16 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
 
 def build_spike_prepass(scene, settings: SpikeSettings, solution=None, vl_threshold=0.5,
                         e_high_rel=4.0, e_low_rel=0.1, E_high=None, E_low=None, seed=0,
-                        sensor=None, progress: bool = True) -> SpikePrepass:
+                        sensor=None, progress: bool = True,
+                        vl_contrast=VL_CONTRAST) -> SpikePrepass:
     """Sources and grid of ``scene`` on top of a radiosity ``solution`` (may be ``None``).
 
     ``progress``: a bar over the visibility rounds (shown on a terminal,
     :func:`mi_twopass.progress.progress`)."""
     t0 = time.perf_counter()
     sources = build_sources(scene, solution, vl_threshold=vl_threshold, e_high_rel=e_high_rel,
-                            e_low_rel=e_low_rel, E_high=E_high, E_low=E_low, seed=seed)
+                            e_low_rel=e_low_rel, E_high=E_high, E_low=E_low, seed=seed,
+                            vl_contrast=vl_contrast)
     t_sources = time.perf_counter() - t0
     with progress_bar(total=settings.visibility_max_rays // VIS_ROUND, desc="spike lists",
                       unit="round", show=progress) as bar:
@@ -1335,6 +1341,7 @@ def build(scene, settings: SpikeSettings, radiosity: RadiositySettings, seed: in
                           sensor=sensor, memo=memo)
     pre = build_spike_prepass(scene, settings, solution=rad.solution,
                               vl_threshold=settings.vl_threshold,
+                              vl_contrast=settings.vl_contrast,
                               e_high_rel=settings.e_high_rel, e_low_rel=settings.e_low_rel,
                               E_high=settings.E_high, E_low=settings.E_low, seed=seed,
                               progress=progress)

@@ -356,7 +356,8 @@ def test_elements_refine_patches_without_changing_them():
 def test_shared_build_and_virtual_luminaire_sampler_agree_with_their_pmf():
     """prepass.radiosity.build: one call makes patches, elements, the solve and the virtual
     luminaires; VirtualLuminaires.sample draws patch i with probability pmf(i) ∝ its power
-    (a chi² test of 2^16 draws), only among the patches whose B_r ≥ vl_threshold × max B_r."""
+    (a chi² test of 2^16 draws), only among the patches whose B_r ≥ vl_threshold × max B_r
+    (the contrast bound off: ``vl_contrast`` = 0)."""
     from scipy import stats
 
     from mi_twopass.prepass.radiosity import RadiositySettings, build
@@ -364,7 +365,8 @@ def test_shared_build_and_virtual_luminaire_sampler_agree_with_their_pmf():
     scenes = os.path.join(os.path.dirname(__file__), "..", "..", "scenes_xml")
     scene = mi.load_file(os.path.join(scenes, "cornell_box.xml"), res=8)
     pre = build(scene, RadiositySettings(max_patches=64, particles_per_patch=64,
-                                         elements_per_patch=4, vl_threshold=0.2), seed=3)
+                                         elements_per_patch=4, vl_threshold=0.2,
+                                         vl_contrast=0.0), seed=3)
     assert pre.scene is scene and not pre.simplified and pre.elements is not None
     assert pre.stats["patches"] == pre.patches.count and pre.stats["radiosity_rays"] > 0
     vl = pre.virtual
@@ -381,6 +383,32 @@ def test_shared_build_and_virtual_luminaire_sampler_agree_with_their_pmf():
     _, p = stats.chisquare(counts, pmf[expected] * n / pmf[expected].sum())
     assert p > 1e-3
     assert np.all(np.asarray(vl.contains(mi.UInt32(expected.astype(np.uint32)))))
+
+
+def test_reclassification_does_not_follow_the_noise_of_the_brightest_patch():
+    """GSII's rule alone (B_r ≥ 0.5 × max B_r) on a flat field of 1000 patches (B_r = 1 ± 5 %)
+    picks every patch or one, as the noise of its brightest patch has it (scenes_xml/office.xml:
+    1 to 300 patches over solve seeds); with the contrast bound (≥ 4 × the area-weighted mean)
+    it picks none in either case, and still the small patch that does stand out (B_r = 20)."""
+    from mi_twopass.prepass.radiosity import VL_CONTRAST, reclassified_patches
+
+    rng = np.random.default_rng(0)
+    Br = 1.0 + 0.05 * rng.standard_normal(1000)
+    area = np.ones(1000)
+    diffuse = np.ones(1000, bool)
+    calm, spiked = Br.copy(), Br.copy()
+    spiked[7] = 2.5  # a noisy outlier: half of it is below every other patch
+    assert reclassified_patches(calm, area, diffuse, 0.5, 0.0).size == 1000
+    assert reclassified_patches(spiked, area, diffuse, 0.5, 0.0).tolist() == [7]
+    assert VL_CONTRAST == 4.0
+    assert reclassified_patches(calm, area, diffuse, 0.5).size == 0
+    assert reclassified_patches(spiked, area, diffuse, 0.5).size == 0
+    bright = calm.copy()
+    bright[3] = 20.0
+    assert reclassified_patches(bright, area, diffuse, 0.5).tolist() == [3]
+    # only cached (diffuse) patches count, and a finite threshold is needed
+    assert reclassified_patches(bright, area, diffuse & (np.arange(1000) != 3), 0.5).size == 0
+    assert reclassified_patches(bright, area, diffuse, math.inf).size == 0
 
 
 def test_receivers_lit_unevenly_are_not_cached():
@@ -419,7 +447,8 @@ def test_virtual_luminaire_points_are_reached_only_where_the_radiosity_is_cached
         "light": {"type": "point", "position": [0.9, 0.9, 0.05],
                   "intensity": {"type": "rgb", "value": 1.0}}})
     pre = build(scene, RadiositySettings(max_patches=4, particles_per_patch=16384,
-                                         elements_per_patch=16, vl_threshold=0.0), seed=1)
+                                         elements_per_patch=16, vl_threshold=0.0,
+                                         vl_contrast=0.0), seed=1)
     el = pre.elements
     assert pre.virtual.count == pre.patches.count and el.is_uneven.any() \
         and not el.is_uneven.all()
