@@ -148,12 +148,14 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         far = gather_ray & si.is_valid() & (si.t >= r_thresh)
         receiver = sol.receiver_at(si, far)  # looked up once for both questions
         far &= sol.receiver_cached(receiver, far)
-        pid = sol.patches.lookup(si, far) if sol.elements is not None else receiver
+        pid = receiver
+        if sol.elements is not None and pre.virtual.count:  # only virtual luminaires need it
+            pid = sol.patches.lookup(si, far)
         if pre.simplified:
             si = pre.scene.ray_intersect(ray, far)
             pid = sol.patches.lookup(si, far & si.is_valid())
             receiver = sol.receiver_at(si, far & si.is_valid())
-        counted = far & ~pre.virtual.contains(pid, far)
+        counted = far & ~pre.virtual.contains(pid, far) if pre.virtual.count else far
         if sol.elements is None:
             return sol.patch_reflected_radiance(pid, counted), far
         return sol.receiver_reflected_radiance(receiver, counted), far

@@ -23,6 +23,19 @@ DEBUG_MODES = ("none", "list_length", "radiosity")
 _TINY = 1e-30
 
 
+class VirtualSample:
+    """An explicit sample of a virtual luminaire (:meth:`SpikeGatherIntegrator.sample_virtual`):
+    the lanes that ``cast`` a ray, those whose ray ``reached`` the point, its direction ``d``
+    and ``radiance_over_pdf``."""
+
+    DRJIT_STRUCT = {"cast": mi.Bool, "reached": mi.Bool, "d": mi.Vector3f,
+                    "radiance_over_pdf": mi.Spectrum}
+
+    def __init__(self, cast=None, reached=None, d=None, radiance_over_pdf=None):
+        self.cast, self.reached, self.d = cast, reached, d
+        self.radiance_over_pdf = radiance_over_pdf
+
+
 def colour_ramp(t):
     """A blue → cyan → green → yellow → red ramp of ``t`` ∈ [0, 1] (Dr.Jit)."""
     t = dr.clip(t, 0.0, 1.0)
@@ -336,7 +349,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
     def sample_gather(self, scene, sampler, ray, active):
         """The estimator of the class docstring, one path per lane."""
         pre = self.structure
-        sol, src = pre.solution, pre.sources
+        sol = pre.solution
         r_thresh = mi.Float(self.r_thresh(scene))
         scale, max_depth, want_direct, want_indirect, ctx, lights = \
             self.loop_constants(scene, ray_scale(scene))
@@ -384,9 +397,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             hit_receiver = sol.receiver_at(si, far)  # looked up once for both questions
             far &= sol.receiver_cached(hit_receiver, far)
             if want_indirect:
-                pid = sol.patches.lookup(si, far)
-                vl_sid = src.source_of_patch(pid, far & from_list)
-                vl_listed = lights.listed(prev_lights, vl_sid, far & from_list)
+                vl_listed = self.listed_virtual(lights, prev_lights, si, far & from_list)
                 # the receiving element hit (the patch's value without elements)
                 L += beta * sol.receiver_reflected_radiance(hit_receiver, far & ~vl_listed)
 
@@ -402,7 +413,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             sid, P_sel, here = lights.sample(si, n_r, two, sampler, active_em)
             u_pos = sampler.next_2d()
             chosen = active_em & (sid != INVALID) & (P_sel > 0)
-            is_vl = lights.is_patch(sid, chosen)
+            is_vl = lights.is_patch(sid, chosen) if self.has_virtual else mi.Bool(False)
             sample_em = chosen & ~is_vl
             use_fb = sample_em & ~here.has_list
 
@@ -411,33 +422,24 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             ds_l, spec_l = emitter.sample_direction(si, u_pos, sample_em)
             is_em = sample_em & (ds_l.pdf > 0)
 
-            vl_pid = src.gather("patch_id", sid, is_vl)
-            p_y, n_y, pdf_a = sol.patches.sample_points(vl_pid, u_pos, is_vl)
-            d_y = p_y - si.p
-            dist2 = dr.squared_norm(d_y)
-            dist = dr.sqrt(dist2)
-            w_y = d_y / dr.maximum(dist, _TINY)
-            cos_y = dr.dot(n_y, -w_y)
-            is_vl &= (dist >= r_thresh) & (pdf_a > 0) & (cos_y > 0) & (dist2 > 0)
+            vl = self.sample_virtual(scene, si, sid, u_pos, is_vl, r_thresh, scale)
+            is_vl = vl.reached
 
-            # emitters: a shadow ray; reclassified patches: the ray must first meet the patch
-            # where it is cached (virtual_point_reached: elsewhere the implicit ray traces on)
-            cast = is_em | is_vl
+            # emitters: a shadow ray; reclassified patches: the ray of sample_virtual
+            cast = is_em | vl.cast
             shadow = shadow_ray(si, ds_l, scale, has_infinite_emitters(scene))
-            visible = is_em & ~scene.ray_test(shadow, is_em)
-            visible |= virtual_point_reached(scene, sol, si, w_y, vl_pid, dist, scale, is_vl)
+            visible = (is_em & ~scene.ray_test(shadow, is_em)) | is_vl
             n_explicit += dr.select(cast, 1, 0)
             n_fallback += dr.select(use_fb & is_em, 1, 0)
 
-            wo = si.to_local(dr.select(is_vl, w_y, ds_l.d))
+            wo = si.to_local(dr.select(is_vl, vl.d, ds_l.d))
             f, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, visible)
             w_em = mis_weight(P_sel * ds_l.pdf, bsdf_pdf)
             if not use_mis:  # the paper's partition for listed sources (fallback keeps MIS)
                 w_em = dr.select(use_fb, w_em, 1.0)
             w_em = dr.select(ds_l.delta, 1.0, w_em)
             contrib_em = spec_l * (w_em / dr.maximum(P_sel, _TINY))
-            Lr = sol.patch_reflected_radiance(vl_pid, is_vl)
-            contrib_vl = Lr * (cos_y / dr.maximum(dist2 * P_sel * pdf_a, _TINY))
+            contrib_vl = vl.radiance_over_pdf / dr.maximum(P_sel, _TINY)
             Ld = beta * f * dr.select(is_vl, contrib_vl, contrib_em)
             Ld = dr.select(visible & dr.all(dr.isfinite(Ld)), Ld, 0.0)
             L += by_component(Ld, is_em & first_vertex, want_direct, want_indirect)
@@ -451,6 +453,48 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         self.count_after((L,), implicit_rays=n_implicit, explicit_rays=n_explicit,
                          fallback_gathers=n_fallback)
         return L, mi.Bool(True), []
+
+    @property
+    def has_virtual(self) -> bool:
+        """Does the prepass have virtual luminaires. Without, their code is left out of the
+        render kernel: its masked gathers and patch lookups cost every lane, as the
+        explicit sample's second ray did (many_lights at 128², tools/render_cost.py)."""
+        return self.structure.sources.patch_count > 0
+
+    def listed_virtual(self, lights, ctx, si, active):
+        """Lanes whose far gather ray met a virtual luminaire of the lists of ``ctx`` (the
+        vertex it left): that light was sampled explicitly there, so the far gather adds
+        nothing."""
+        if not self.has_virtual:
+            return mi.Bool(False)
+        pre = self.structure
+        pid = pre.solution.patches.lookup(si, active)
+        return lights.listed(ctx, pre.sources.source_of_patch(pid, active), active)
+
+    def sample_virtual(self, scene, si, sid, u, active, r_thresh, scale) -> "VirtualSample":
+        """The explicit sample of source ``sid`` where it is a virtual luminaire (``active``):
+        a point y on its patch (uniform by area, from ``u``), and whether the ray towards it
+        first meets the patch where the radiosity is cached
+        (:func:`~mi_twopass.prepass.radiosity.virtual_point_reached`) at |y − x| ≥ r_thresh.
+        The radiance over the area density, B_r/π · cos_y / (|y − x|² · pdf_A), is what the
+        caller divides by the source's probability."""
+        if not self.has_virtual:
+            return VirtualSample(mi.Bool(False), mi.Bool(False), mi.Vector3f(0.0),
+                                 mi.Spectrum(0.0))
+        pre = self.structure
+        sol = pre.solution
+        pid = pre.sources.gather("patch_id", sid, active)
+        p_y, n_y, pdf_a = sol.patches.sample_points(pid, u, active)
+        d_y = p_y - si.p
+        dist2 = dr.squared_norm(d_y)
+        dist = dr.sqrt(dist2)
+        w_y = d_y / dr.maximum(dist, _TINY)
+        cos_y = dr.dot(n_y, -w_y)
+        cast = active & (dist >= r_thresh) & (pdf_a > 0) & (cos_y > 0) & (dist2 > 0)
+        reached = virtual_point_reached(scene, sol, si, w_y, pid, dist, scale, cast)
+        value = sol.patch_reflected_radiance(pid, cast) * (
+            cos_y / dr.maximum(dist2 * pdf_a, _TINY))
+        return VirtualSample(cast, reached, w_y, value)
 
     def sample_debug(self, scene, sampler, ray, active):
         """Debug views at the first non-delta hit (delta surfaces followed as a path)."""

@@ -218,6 +218,11 @@ class Sources:
         return int(self.kind.shape[0])
 
     @property
+    def patch_count(self) -> int:
+        """Number of virtual luminaires (patch sources)."""
+        return int(np.count_nonzero(self.kind == KIND_PATCH))
+
+    @property
     def delta_ids(self) -> np.ndarray:
         """Delta sources that can emit (the defensive mixture's support ``"delta"``)."""
         return np.nonzero(self.delta & (self.intensity > 0))[0]
