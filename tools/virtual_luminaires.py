@@ -5,7 +5,7 @@
 GSII's rule (B_r ≥ vl_threshold × max B_r) follows the noise of the brightest patch; the
 contrast bound (B_r ≥ vl_contrast × the area-weighted mean, ``prepass.radiosity.VL_CONTRAST``)
 keeps only patches that stand out of the field. Prints, per seed, max B_r over that mean and
-the count (and area share) each rule picks, with spike_gather's default radiosity budget.
+the count (and its share of the cached area and of their reflected power) each rule picks, with spike_gather's default radiosity budget.
 """
 import argparse
 
@@ -37,7 +37,9 @@ def main():
         cells = []
         for c in contrasts:
             ids = R.reclassified_patches(Br, area, sol.patches.is_diffuse, a.vl_threshold, c)
-            cells.append(f"contrast {c:g}: {ids.size} ({area[ids].sum() / area[ok].sum():.1%})")
+            power = Br * area
+            cells.append(f"contrast {c:g}: {ids.size} (area {area[ids].sum() / area[ok].sum():.1%},"
+                         f" power {power[ids].sum() / power[ok].sum():.1%})")
         print(f"seed {seed}: max/mean {Br.max() / mean:5.1f}   " + "   ".join(cells), flush=True)
 
 

@@ -239,8 +239,9 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
      * - vl_contrast
        - |float|
        - ... and only those with B_r ≥ vl_contrast × the area-weighted mean B_r of the cached
-         patches (default: 4; 0: GSII's rule alone, whose count follows the noise of the
-         brightest patch: :data:`mi_twopass.prepass.radiosity.VL_CONTRAST`).
+         patches, and none where together they carry under 2 % of the cached patches'
+         reflected power (default: 4; 0: GSII's rule alone, whose count follows the noise of
+         the brightest patch: :func:`mi_twopass.prepass.radiosity.reclassified_patches`).
      * - max_depth, rr_depth, seed, component
        -
        - As every mi_twopass integrator: path length (-1: unbounded), Russian roulette start,

@@ -648,11 +648,20 @@ MIN_PARTICLES = 1 << 16
 #: or 300 patches, window_interior's sunlit floor 327–350 (13 % of the area); with many of them
 #: spike_gather's relMSE at 16 and 32 spp (256²) was 1.4–1.8× that with one, radiosity_gather's
 #: equal-time ratio on the office 1.73 against 3.49 with none (``bench --integrators
-#: radiosity_gather,radiosity_gather:vl_threshold=2``). With 4: the office 0–3, window_interior
-#: 1–3, the Cornell box's ceiling 38–40 (as before, where they help: equal-spp 2.44 against
-#: 1.59 without), veach-bidir's lamp 18 (as before), many_lights 2–4 (as before)
-#: (``tools/virtual_luminaires.py``)
+#: radiosity_gather,radiosity_gather:vl_threshold=2``, 6 s budget). With 4: the office 0–3,
+#: window_interior 1–3, the Cornell box 38–40 (as before; radiosity_gather's equal-spp ratio
+#: 2.44 against 1.59 without any in that run), veach-bidir's lamp 18 and many_lights 2–4 (as
+#: before) (``tools/virtual_luminaires.py``)
 VL_CONTRAST = 4.0
+#: ... and only where the patches chosen carry at least this share of the reflected power of
+#: the cached patches: the code that samples them costs about a quarter of a render's time per
+#: sample (spike_gather on many_lights at 128², ``tools/render_cost.py``), which light that
+#: faint cannot pay back. On many_lights (2–4 patches beside the lights, 0.0 % of the power)
+#: spike_gather's relMSE at equal spp was the same with and without them at 256² (equal-spp
+#: ratio 4.55 and 4.50), its equal-time ratio 2.76 against 3.51 without. Below it too: caustic
+#: (1.1 %), tut-cbox (0.3 %), staircase2 (0.0 %); above: the Cornell box (7.7 %), mixed_room
+#: (6–8 %), veach-bidir's lamp (46 %)
+VL_MIN_POWER = 0.02
 
 
 @dataclass(frozen=True)
@@ -682,7 +691,9 @@ def reclassified_patches(Br, area, is_diffuse, vl_threshold: float,
     """Ids of the patches GSII reclassifies as virtual luminaires (Zimmerman & Shirley §2.5):
     diffuse (cached) patches of reflected radiosity ``Br`` (one value per patch) with
     B_r ≥ ``vl_threshold`` × max B_r and B_r ≥ ``contrast`` × the area-weighted mean B_r of
-    the cached patches (:data:`VL_CONTRAST`); none for a non-finite threshold."""
+    the cached patches (:data:`VL_CONTRAST`), none where together they carry less than
+    :data:`VL_MIN_POWER` of the cached patches' reflected power, and none for a non-finite
+    threshold. ``contrast`` = 0 is GSII's rule alone (no mean, no power floor)."""
     Br = np.asarray(Br, np.float64)
     area = np.asarray(area, np.float64)
     is_diffuse = np.asarray(is_diffuse, bool)
@@ -691,7 +702,11 @@ def reclassified_patches(Br, area, is_diffuse, vl_threshold: float,
     ok = is_diffuse & (Br > 0) & (area > 0)
     mean = float(np.sum(Br[ok] * area[ok]) / np.sum(area[ok])) if ok.any() else 0.0
     limit = max(vl_threshold * Br.max(), float(contrast) * mean)
-    return np.nonzero(ok & (Br >= limit))[0].astype(np.uint32)
+    chosen = np.nonzero(ok & (Br >= limit))[0].astype(np.uint32)
+    power = Br * area
+    if contrast > 0 and chosen.size and power[chosen].sum() < VL_MIN_POWER * power[ok].sum():
+        return np.zeros(0, np.uint32)
+    return chosen
 
 
 class VirtualLuminaires:

@@ -389,7 +389,8 @@ def test_reclassification_does_not_follow_the_noise_of_the_brightest_patch():
     """GSII's rule alone (B_r ≥ 0.5 × max B_r) on a flat field of 1000 patches (B_r = 1 ± 5 %)
     picks every patch or one, as the noise of its brightest patch has it (scenes_xml/office.xml:
     1 to 300 patches over solve seeds); with the contrast bound (≥ 4 × the area-weighted mean)
-    it picks none in either case, and still the small patch that does stand out (B_r = 20)."""
+    it picks none in either case, and still a small patch that does stand out (B_r = 40),
+    unless it carries too little of the reflected power to pay for being sampled."""
     from mi_twopass.prepass.radiosity import VL_CONTRAST, reclassified_patches
 
     rng = np.random.default_rng(0)
@@ -404,8 +405,12 @@ def test_reclassification_does_not_follow_the_noise_of_the_brightest_patch():
     assert reclassified_patches(calm, area, diffuse, 0.5).size == 0
     assert reclassified_patches(spiked, area, diffuse, 0.5).size == 0
     bright = calm.copy()
-    bright[3] = 20.0
+    bright[3] = 40.0  # 3.9 % of the reflected power
     assert reclassified_patches(bright, area, diffuse, 0.5).tolist() == [3]
+    faint = calm.copy()
+    faint[3] = 10.0  # stands out, but 1 % of the power: not worth its sampling code
+    assert reclassified_patches(faint, area, diffuse, 0.5).size == 0
+    assert reclassified_patches(faint, area, diffuse, 0.5, 0.0).tolist() == [3]
     # only cached (diffuse) patches count, and a finite threshold is needed
     assert reclassified_patches(bright, area, diffuse & (np.arange(1000) != 3), 0.5).size == 0
     assert reclassified_patches(bright, area, diffuse, math.inf).size == 0
