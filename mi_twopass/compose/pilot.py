@@ -6,13 +6,19 @@ relative variance of one sample. Both come from a pilot: P pixels of the film dr
 (the same pixels for every candidate), M independent camera samples each, traced by the
 candidate's ``sample`` exactly as its render would trace them.
 
-Cost per sample. A Dr.Jit call costs a fixed part (tracing the loop in Python, compiling or
-looking up the kernel, launching it) plus a part per lane. The pilot runs the same pixels with M
-samples each (compiling the kernels), then twice with 4M, and takes the faster of the two 4M
-runs per lane: c = min(t₁, t₂) / (4·P·M) seconds per lane (the fixed part included, a few per
-cent at 65536 lanes; the minimum of two keeps a hiccup of a busy machine out); a full-film
-sample costs c × film pixels. (The slope between an M and a 4M run, which leaves the fixed part
-out, moved by 6× between repeats on a loaded 2-core machine.)
+Cost per sample. A Dr.Jit call costs a fixed part (tracing the loop in Python, looking up the
+compiled kernel, launching it) plus a part per lane. The pilot runs the same pixels with M
+samples each (compiling the kernels), then twice with 4M, then once with one sample of
+:data:`FIXED_PIXELS` pixels, whose time t₀ is the fixed part alone: c = (min(t₁, t₂) − t₀) /
+(4·P·M) seconds per lane (the minimum of two keeps a hiccup of a busy machine out; at least
+:data:`MIN_LANE_SHARE` of min(t₁, t₂) counts as per-lane, should t₀ read high); a full-film
+sample costs c × film pixels. The fixed part is not small: tracing a loop that calls every
+emitter's sampling code grows with the emitters, and at 256² it was 60 % of a 4M run on
+many_lights (0.025 of 0.042 s: the pilot had put path at 0.050 s per sample where its renders
+take 0.0146), 16 % on the office, 13 % on the Cornell box; with t₀ taken off, 0.017, 0.035 and
+0.0137 s against renders' 0.0146, 0.034 and 0.0135 s per sample. (The slope between an M and a
+4M run, which also leaves the fixed part out, moved by 6× between repeats on a loaded 2-core
+machine: its two times are both large and close.)
 
 Relative variance. For pixel p, channel k, the sample variance s²_pk of the 9M samples, over
 the squared pixel value R_pk of a reference shared by all candidates, with relMSE's ε
@@ -124,6 +130,10 @@ class PilotRun:
 
 #: a pilot's runs, in multiples of ``PilotSettings.samples`` per pixel (:func:`pilot`)
 RUNS = (1, 4, 4)
+#: pixels (one sample each) of the run that times a call's fixed part (module docstring)
+FIXED_PIXELS = 16
+#: the least share of a timed run counted as its per-lane part
+MIN_LANE_SHARE = 0.1
 
 
 def pilot_samples(settings: PilotSettings, pixels: PilotPixels) -> int:
@@ -132,15 +142,22 @@ def pilot_samples(settings: PilotSettings, pixels: PilotPixels) -> int:
 
 
 def pilot(scene, sensor, pixels: PilotPixels, settings: PilotSettings, estimator, seed: int):
-    """Run ``estimator`` with M, 4M and 4M samples per pixel (see the module docstring) →
+    """Run ``estimator`` with M, 4M and 4M samples per pixel, then once on
+    :data:`FIXED_PIXELS` pixels for the fixed part (see the module docstring) →
     :class:`PilotRun`."""
     m = settings.samples
     # the first run compiles the kernels; the faster of the others is timed
     runs = [run_samples(scene, sensor, pixels, k * m, estimator, seed + i)
             for i, k in enumerate(RUNS)]
-    timed = min(t / (len(pixels.index) * k * m) for (_, t), k in zip(runs[1:], RUNS[1:]))
-    return PilotRun(values=np.concatenate([v for v, _ in runs], axis=1), seconds_per_lane=timed,
-                    seconds=sum(t for _, t in runs[1:]), lanes=pilot_samples(settings, pixels))
+    few = PilotPixels(index=pixels.index[:FIXED_PIXELS], width=pixels.width,
+                      height=pixels.height)
+    _, fixed = run_samples(scene, sensor, few, 1, estimator, seed + len(RUNS))
+    lanes, seconds = min(((len(pixels.index) * k * m, t) for (_, t), k in
+                          zip(runs[1:], RUNS[1:])), key=lambda lt: lt[1] / lt[0])
+    per_lane = max(seconds - fixed, MIN_LANE_SHARE * seconds) / lanes
+    return PilotRun(values=np.concatenate([v for v, _ in runs], axis=1),
+                    seconds_per_lane=per_lane, seconds=sum(t for _, t in runs[1:]) + fixed,
+                    lanes=pilot_samples(settings, pixels))
 
 
 def relative_variance(values: np.ndarray, reference: np.ndarray, eps: float = RELMSE_EPS):

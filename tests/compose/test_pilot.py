@@ -29,6 +29,27 @@ def test_pilot_of_a_constant_estimator_has_zero_variance_and_positive_cost(tiny_
     assert run.lanes == pl.pilot_samples(pl.PilotSettings(pixels=64, samples=4), px) == 64 * 36
 
 
+def test_cost_per_sample_leaves_the_fixed_part_of_a_call_out(tiny_scene_file):
+    """An estimator whose every call costs 50 ms of tracing, whatever its lanes (many_lights'
+    path pilot: 60 % of a 4M run), and next to nothing per lane: the pilot's cost per lane
+    must not charge the 50 ms to the lanes (it put path at 3.4x its render's cost there)."""
+    import time
+
+    scene = mi.load_file(tiny_scene_file)
+    sensor = scene.sensors()[0]
+    px = pl.choose_pixels(sensor, 64, seed=1)
+    settings = pl.PilotSettings(pixels=64, samples=4)
+
+    def slow_to_trace(s, sampler, ray, active):
+        time.sleep(0.05)
+        return mi.Spectrum(0.25)
+
+    run = pl.pilot(scene, sensor, px, settings, slow_to_trace, seed=0)
+    lanes = 64 * 4 * 4  # one timed run
+    assert run.seconds_per_lane * lanes < 0.3 * 0.05
+    assert run.seconds_per_lane > 0
+
+
 def test_relative_variance_is_the_relmse_of_one_sample():
     rng = np.random.default_rng(0)
     ref = np.full((500, 3), 2.0)
