@@ -422,7 +422,7 @@ class Decision:
 
     def reason(self) -> str:
         if self.chosen.name not in self.measured:  # forced, or no prepass could fit
-            why = self.skipped.get("pilot") or "no prepass fits the pilot budget"
+            why = self.skipped.get("pilot") or "the pilot would not pay (twopass_skipped)"
             return f"{self.chosen.name} at {self.spp} spp, no pilot: {why}"
         m = self.measured[self.chosen.name]
         others = [f"{n}: {self.measured[n].score(self.spp):.3g}" for n in self.measured
