@@ -458,8 +458,9 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
     @property
     def has_virtual(self) -> bool:
         """Does the prepass have virtual luminaires. Without, their code is left out of the
-        render kernel: its masked gathers and patch lookups cost every lane, as the
-        explicit sample's second ray did (many_lights at 128², tools/render_cost.py)."""
+        render kernel: its masked gathers, surface interaction and patch lookups cost every
+        lane, used or not (about a quarter of a sample on many_lights at 128²,
+        tools/render_cost.py)."""
         return self.structure.sources.patch_count > 0
 
     def listed_virtual(self, lights, ctx, si, active):
@@ -472,7 +473,7 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
         pid = pre.solution.patches.lookup(si, active)
         return lights.listed(ctx, pre.sources.source_of_patch(pid, active), active)
 
-    def sample_virtual(self, scene, si, sid, u, active, r_thresh, scale) -> "VirtualSample":
+    def sample_virtual(self, scene, si, sid, u, active, r_thresh, scale) -> VirtualSample:
         """The explicit sample of source ``sid`` where it is a virtual luminaire (``active``):
         a point y on its patch (uniform by area, from ``u``), and whether the ray towards it
         first meets the patch where the radiosity is cached
