@@ -434,9 +434,14 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
     def _render_black(self, scene, sensor, seed, spp, develop, evaluate):
         """``max_depth = 0``: what Mitsuba's ``path`` renders (black, alpha 0, the film's
         size and channels), without a prepass."""
-        t0 = time.perf_counter()
         black = mi.load_dict({"type": "path", "max_depth": 0})
-        image = black.render(scene, sensor, seed, spp, develop, evaluate)
+        return self._render_with_plugin(black, scene, sensor, seed, spp, develop, evaluate)
+
+    def _render_with_plugin(self, plugin, scene, sensor, seed, spp, develop, evaluate):
+        """The image of one of Mitsuba's own integrators rendering in this one's place (no
+        prepass, no ray counters), with this integrator's :attr:`stats` for it."""
+        t0 = time.perf_counter()
+        image = plugin.render(scene, sensor, seed, spp, develop, evaluate)
         dr.eval(image)
         dr.sync_thread()
         self._counters = {}

@@ -21,8 +21,6 @@ The three add up to ``path``'s estimate, lane by lane; their separate variances 
 """
 from __future__ import annotations
 
-import time
-
 import drjit as dr
 import mitsuba as mi
 
@@ -64,14 +62,8 @@ class ComponentPathIntegrator(TwoPassIntegrator):
         if plugin is None:
             plugin = self._mitsuba_path = mi.load_dict(
                 {"type": "path", "max_depth": self.max_depth, "rr_depth": self.rr_depth})
-        t0 = time.perf_counter()
-        image = plugin.render(scene, sensor, seed + self.sample_seed_offset, spp, develop,
-                              evaluate)
-        dr.eval(image)
-        dr.sync_thread()
-        self._counters = {}
-        self._prepass_stats = {}
-        self._finish_stats(sensor, spp, 0.0, time.perf_counter() - t0)
+        image = self._render_with_plugin(plugin, scene, sensor, seed + self.sample_seed_offset,
+                                         spp, develop, evaluate)
         for key in ("implicit_rays", "explicit_rays"):  # not counted by Mitsuba's plugin
             self.stats.pop(key, None)
         return image
