@@ -10,7 +10,9 @@ timed; ``path`` is always measured, it is the baseline). Written into the output
 * ``<scene>.png``: relMSE against time, log-log, every integrator on one plot;
 * ``<scene>_images.png``: the reference, and per integrator its image at its largest spp with
   its FLIP error map beneath;
-* ``results.md``: one Markdown table over all scenes (columns: :data:`COLUMNS`);
+* ``results.md``: one Markdown table over all scenes (columns: :data:`COLUMNS`), then each
+  scene's reference noise (:func:`reference_relmse`: the reference is ``path`` too, so its own
+  relMSE is read off path's curve), marked where it takes more than a quarter of the target;
 * ``bench.log``: every point as the harness logged it.
 
 Run time. An integrator costs at most its budget (the harness stops before a point that, at
@@ -182,6 +184,27 @@ def path_relmse_at_spp(path_points, spp: int):
     return end.relmse * end.spp / spp, True
 
 
+#: a reference whose own relMSE is above this share of the target is marked in results.md:
+#: every curve's error then carries a floor of that size, and times to the target stretch
+REFERENCE_NOISE_SHARE = 0.25
+
+
+def reference_relmse(path_points, ref_spp: int):
+    """The reference's own relMSE, estimated from ``path``'s curve: the reference is ``path``
+    at ``ref_spp``, independent of the curve's renders, so path's error at ``spp`` is about
+    c·(1/spp + 1/ref_spp) (two unbiased estimates, each of variance c/spp against the truth),
+    and the reference's share is c/ref_spp. c is the median over path's points of
+    relMSE / (1/spp + 1/ref_spp) (the median: one firefly-struck point does not move it).
+    Every integrator's relMSE carries that floor; where it is a large part of the target
+    (many_lights at 256², ref 2048 spp: 6e-3 of 0.01) no curve reaches the target in time,
+    and a larger ``--ref-spp`` is the fix. None without points."""
+    pts = [p for p in path_points if p.relmse > 0 and p.spp > 0]
+    if not pts or ref_spp <= 0:
+        return None
+    c = float(np.median([p.relmse / (1.0 / p.spp + 1.0 / ref_spp) for p in pts]))
+    return c / ref_spp
+
+
 def equal_spp_ratio(path_points, points):
     """(path's relMSE over the method's at the method's largest spp, path interpolated there;
     extrapolated?) — per-sample quality, free of either implementation's speed."""
@@ -265,8 +288,28 @@ def format_row(row: dict) -> str:
     return table_line(cells)
 
 
-def format_results(rows, header: str) -> str:
-    """results.md: the header line, one table over all rows, and what each column means."""
+def reference_notes(reference_noise: dict, target: float = harness.TARGET_RELMSE) -> list:
+    """results.md lines on each scene's reference noise (:func:`reference_relmse`):
+    ``{scene label: (relMSE or None, ref_spp)}``; a scene whose reference takes more than
+    :data:`REFERENCE_NOISE_SHARE` of the target is marked."""
+    lines = []
+    for label, (value, ref_spp) in reference_noise.items():
+        if value is None:
+            continue
+        share = value / target
+        mark = " — **reference-limited**: raise `--ref-spp`" \
+            if share > REFERENCE_NOISE_SHARE else ""
+        lines.append(f"- {label}: the reference ({ref_spp} spp) has relMSE ≈ {value:.1e}, "
+                     f"{100 * share:.0f} % of the target{mark}")
+    if not lines:
+        return []
+    return ["", "Reference noise (estimated from `path`'s curve, `bench.reference_relmse`; "
+                "every curve's relMSE carries it):", *lines]
+
+
+def format_results(rows, header: str, reference_noise: dict | None = None) -> str:
+    """results.md: the header line, one table over all rows, what each column means, and
+    each scene's reference noise (``{scene label: (relMSE, ref_spp)}``)."""
     return markdown_report(header, COLUMNS, [format_row(r) for r in rows], [
         "- **t(relMSE 0.01)**: seconds (prepass included) to reach relMSE 0.01, log-log "
         "interpolated between the bracketing points; *not reached* within the budget.",
@@ -282,7 +325,7 @@ def format_results(rows, header: str) -> str:
         "- **rays / viewing ray**: (implicit + explicit + viewing rays) / viewing rays at the "
         "largest spp; — where the integrator does not count them (Mitsuba's path).",
         "- **twopass chose**: the composition twopass rendered with at the largest spp.",
-    ])
+    ] + reference_notes(reference_noise or {}))
 
 
 # -- images ------------------------------------------------------------------------------------
@@ -391,8 +434,13 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
             rows.append(table_row(label, curves[spec], curves.get(baseline)))
         else:
             rows.append(failed_row(label, spec, failures[spec]))
+    ref_noise = reference_relmse(curves[baseline].points, ref_spp) if baseline in curves \
+        else None
+    if ref_noise is not None:
+        log(f"  reference's own relMSE ≈ {ref_noise:.1e} ({ref_spp} spp, from path's curve)")
     meta = {"scene": os.fspath(scene_path), "params": params, "film_res": film_res,
-            "budget": budget, "ref_spp": ref_spp, "seed": seed}
+            "budget": budget, "ref_spp": ref_spp, "seed": seed,
+            "reference_relmse": ref_noise, "label": label}
     files = {"json": f"{name}.json", "plot": f"{name}.png", "images": f"{name}_images.png"}
     harness.write_json(curves, os.path.join(out_dir, files["json"]), meta=meta)
     harness.write_plot(curves, os.path.join(out_dir, files["plot"]),
@@ -456,7 +504,8 @@ def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_
               f"took {_duration(info['wall_seconds'])}. Command: `{info['command']}`")
     rows = [r for e in entries.values() for r in e["rows"]]
     with open(os.path.join(out_dir, "results.md"), "w") as f:
-        f.write(format_results(rows, header))
+        f.write(format_results(rows, header, {
+            e["label"]: (e["reference_relmse"], e["ref_spp"]) for e in entries.values()}))
     log(f"wrote {out_dir}/results.md, bench.json, bench.log and per scene <scene>.json, "
         f"<scene>.png, <scene>_images.png ({_duration(info['wall_seconds'])})")
     return info

@@ -158,3 +158,26 @@ def test_table_arithmetic():
     assert bench.scene_names(["a/scene.xml", "b/scene.xml", "c/cbox.xml"]) == [
         "a_scene", "b_scene", "cbox"]
     assert not math.isnan(bench.auto_exposure([[[0.0, 0.0, 0.0]]]))
+
+
+def test_reference_noise_is_read_off_paths_curve_and_marked_where_it_eats_the_target():
+    def pts(spps, errors):
+        return [Point(s, 0.1 * s, e, 0.1, e, {}) for s, e in zip(spps, errors)]
+
+    # path against a reference of the same estimator: relMSE = c (1/spp + 1/ref_spp)
+    c, ref = 12.5, 2048
+    curve = pts([8, 16, 32, 64, 128], [c * (1 / s + 1 / ref) for s in (8, 16, 32, 64, 128)])
+    assert bench.reference_relmse(curve, ref) == pytest.approx(c / ref)
+    # one firefly-struck point does not move the median
+    curve[2] = Point(32, 3.2, 50.0, 0.1, 50.0, {})
+    assert bench.reference_relmse(curve, ref) == pytest.approx(c / ref)
+    assert bench.reference_relmse([], ref) is None
+
+    notes = "\n".join(bench.reference_notes({"a (256×256)": (c / 2048, 2048),
+                                             "b (256×256)": (c / 8192, 8192),
+                                             "c (8×8)": (None, 64)}))
+    a_line = next(ln for ln in notes.splitlines() if ln.startswith("- a"))
+    b_line = next(ln for ln in notes.splitlines() if ln.startswith("- b"))
+    assert "61 %" in a_line and "reference-limited" in a_line  # 6.1e-3 of 0.01
+    assert "15 %" in b_line and "reference-limited" not in b_line
+    assert "- c" not in notes
