@@ -13,7 +13,8 @@ correct integrator keeps small whatever its noise pattern:
 A row is marked "OUT" when |ratio − 1| > 1 % or block relMSE > 3e-3 (:data:`RATIO_TOLERANCE`,
 :data:`BLOCK_RELMSE_MAX`). Both include the noise of the render and of the reference: the
 default rows start with ``path`` itself at the same spp, which shows that noise (on a scene
-with fireflies ``path`` is OUT too); raise ``spp`` / ``ref_spp`` before reading an OUT as a
+with fireflies ``path`` is OUT too, and every other OUT row then says it is noise-limited,
+:func:`mark_noise_limited`); raise ``spp`` / ``ref_spp`` before reading an OUT as a
 bias. An integrator that refuses the scene
 (``ValueError`` / ``NotImplementedError`` from its prepass) is reported as refused, with its
 message. The result is a report: nothing here raises for a row that is out of bounds.
@@ -64,6 +65,9 @@ class CheckRow:
     out: bool = False
     refused: str | None = None
     stats: dict = field(default_factory=dict)
+    #: out of bounds where ``path``'s own row, at the same spp, is out too
+    #: (:func:`mark_noise_limited`): the bounds are noise-limited there, not proof of a bias
+    noise_limited: bool = False
 
 
 def block_means(image, block: int = BLOCK) -> np.ndarray:
@@ -121,6 +125,16 @@ def refusal_of(exc):
     return None
 
 
+def mark_noise_limited(rows) -> None:
+    """Mark every other OUT row ``noise_limited`` where the ``path`` row (Mitsuba's unbiased
+    estimator at the same spp: the noise alone) is OUT too. Rows are left as they are where
+    there is no ``path`` row or it is in bounds."""
+    path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
+                None)
+    for r in rows:
+        r.noise_limited = bool(path is not None and path.out and r is not path and r.out)
+
+
 def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0) -> CheckRow:
     """Render ``scene`` with a fresh integrator from ``spec`` (``NAME[:key=value...]``) at
     ``spp`` and compare with ``ref``. A ``ValueError`` / ``NotImplementedError`` raised while
@@ -171,6 +185,7 @@ def run_check(scene_path, integrators=DEFAULT_INTEGRATORS, spp: int = DEFAULT_SP
     for spec in integrators:
         row = check_integrator(scene, spec, ref, spp, seed)
         rows.append(row)
+        mark_noise_limited(rows)
         if log is not None:
             log(format_row(row))
     meta = {"scene": os.fspath(scene_path), "params": params, "film_res": film_res,
@@ -189,6 +204,8 @@ def format_row(row: CheckRow) -> str:
         return f"{row.integrator:<32} refused: {row.refused}"
     line = (f"{row.integrator:<32} {row.seconds:>8.2f} {row.mean_ratio:>11.4f} "
             f"{row.block_relmse:>13.2e}")
+    if row.noise_limited:
+        return line + "  OUT (path is OUT too: noise-limited at this spp)"
     return line + ("  OUT" if row.out else "")
 
 

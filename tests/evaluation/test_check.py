@@ -165,3 +165,25 @@ def test_a_sky_in_a_room_of_merged_walls_gets_an_unmerged_reference(tmp_path, re
     assert abs(img.mean() - unmerged.mean()) < 0.2 * (leaky.mean() - unmerged.mean())
     meta = [json.loads(f.read_text()) for f in ref_cache.glob("*.json")]
     assert [m["unmerged"] for m in meta] == [True]
+
+
+def test_out_rows_say_noise_limited_where_path_itself_is_out():
+    path = check.CheckRow("path", mean_ratio=0.985, block_relmse=6e-3, out=True)
+    biased = check.CheckRow("spike_gather", mean_ratio=0.984, block_relmse=3.4e-3, out=True)
+    fine = check.CheckRow("radiosity_gather", mean_ratio=1.0, block_relmse=1e-4, out=False)
+    refused = check.CheckRow("rex", refused="no media")
+    rows = [path, biased, fine, refused]
+    check.mark_noise_limited(rows)
+    assert biased.noise_limited and not fine.noise_limited and not path.noise_limited
+    assert not refused.noise_limited
+    for r in (path, biased, fine):
+        r.seconds = 1.0
+    assert check.format_row(biased).endswith("OUT (path is OUT too: noise-limited at this spp)")
+    assert check.format_row(path).endswith("  OUT")
+    # path in bounds: an OUT row is just OUT
+    path.out = False
+    check.mark_noise_limited(rows)
+    assert not biased.noise_limited and check.format_row(biased).endswith("  OUT")
+    # no path row: nothing is marked
+    check.mark_noise_limited([biased])
+    assert not biased.noise_limited
