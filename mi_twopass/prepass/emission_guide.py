@@ -290,7 +290,7 @@ def camera_importance(scene, sensor, receivers, seed: int, lanes: int = CAMERA_L
     ``CAMERA_BOUNCES`` BSDF-sampled bounces from a uniform film position, hit it (module
     docstring, step 2). ``receivers``: the elements, else the patches (``lookup``)."""
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, lanes)
+    sampler.seed(dr.opaque(mi.UInt32, seed), lanes)  # a literal seed: kernels per seed
     ray, _ = sensor.sample_ray(0.0, 0.5, sampler.next_2d(), sampler.next_2d())
     ray = mi.Ray3f(ray)
     W = dr.zeros(mi.Float, receivers.count + 1)

@@ -152,7 +152,7 @@ def depth_classes(max_depth: int) -> int:
 
 def _sampler(seed, n):
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(seed, int(n))
+    sampler.seed(dr.opaque(mi.UInt32, seed), int(n))  # a literal seed: kernels per seed
     return sampler
 
 

@@ -107,7 +107,7 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     u = ((ix.ravel() + rng.random(w * h)) / w).astype(np.float32)
     v = ((iy.ravel() + rng.random(w * h)) / h).astype(np.float32)
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(hash31(seed, 2), w * h)
+    sampler.seed(dr.opaque(mi.UInt32, hash31(seed, 2)), w * h)  # literal: kernels per seed
     ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(mi.Float(u), mi.Float(v)),
                                mi.Point2f(0.5, 0.5))
     ctx = mi.BSDFContext()

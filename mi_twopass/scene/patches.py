@@ -813,10 +813,12 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     # (scenes_xml/caustic.xml: 0.10 of the receiving elements' 0.14 s)
     Pd, Nd = _dr_vectors(P, mi.Point3f), _dr_vectors(Nrm, mi.Vector3f)
     extent = [float(dr.max(Pd[i])[0] - dr.min(Pd[i])[0]) for i in range(3)]
-    delta = 1e-4 * max(math.sqrt(sum(e * e for e in extent)), 1e-30)
+    # opaque: it follows the random points, and as a literal it compiled the probes' kernels
+    # anew for every seed (6 kernels a radiosity prepass)
+    delta = dr.opaque(mi.Float, 1e-4 * max(math.sqrt(sum(e * e for e in extent)), 1e-30))
     ray = mi.Ray3f(Pd + Nd * delta, -Nd)
     pi = dr.zeros(mi.PreliminaryIntersection3f, n)
-    pi.t = dr.full(mi.Float, delta, n)
+    pi.t = delta + dr.zeros(mi.Float, n)
     pi.prim_uv = mi.Point2f(mi.Float(bary[:, 0].astype(np.float32)),
                             mi.Float(bary[:, 1].astype(np.float32)))
     pi.prim_index = mi.UInt32(prim.astype(np.uint32))
