@@ -813,8 +813,8 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     # (scenes_xml/caustic.xml: 0.10 of the receiving elements' 0.14 s)
     Pd, Nd = _dr_vectors(P, mi.Point3f), _dr_vectors(Nrm, mi.Vector3f)
     extent = [float(dr.max(Pd[i])[0] - dr.min(Pd[i])[0]) for i in range(3)]
-    # opaque: it follows the random points, and as a literal it compiled the probes' kernels
-    # anew for every seed (6 kernels a radiosity prepass)
+    # opaque: it follows the random points, and as a literal in the probes' kernels it
+    # compiled them anew for every seed (6 kernels a radiosity prepass)
     delta = dr.opaque(mi.Float, 1e-4 * max(math.sqrt(sum(e * e for e in extent)), 1e-30))
     ray = mi.Ray3f(Pd + Nd * delta, -Nd)
     pi = dr.zeros(mi.PreliminaryIntersection3f, n)
