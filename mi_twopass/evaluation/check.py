@@ -127,8 +127,8 @@ def refusal_of(exc):
 
 def mark_noise_limited(rows) -> None:
     """Mark every other OUT row ``noise_limited`` where the ``path`` row (Mitsuba's unbiased
-    estimator at the same spp: the noise alone) is OUT too. Rows are left as they are where
-    there is no ``path`` row or it is in bounds."""
+    estimator at the same spp: the noise alone) is OUT too; where there is no ``path`` row or
+    it is in bounds, no row is marked."""
     path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
                 None)
     for r in rows:
