@@ -40,3 +40,13 @@ def test_columns_compiles_no_kernel_per_size(kernel_history):
             kernel_history()  # the first size compiles
         else:
             assert kernel_history() == 0, n
+
+
+def test_vectors_is_the_inverse_of_columns():
+    from mi_twopass.host_arrays import vectors
+
+    a = np.arange(12, dtype=np.float64).reshape(4, 3) * 0.5
+    v = vectors(a, mi.Vector3f)
+    assert isinstance(v, mi.Vector3f) and dr.width(v) == 4
+    np.testing.assert_array_equal(columns(v), a)
+    np.testing.assert_array_equal(columns(vectors(a.T.copy().T, mi.Point3f)), a)  # strided in

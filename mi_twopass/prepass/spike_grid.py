@@ -109,7 +109,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..host_arrays import columns
+from ..host_arrays import columns, vectors
 from ..progress import progress as progress_bar
 from ..seeds import numpy_rng, splitmix64
 from ..tables import Tables
@@ -149,10 +149,9 @@ def _np3(v):
 
 
 def _dr3(a, cls):
+    """:func:`~mi_twopass.host_arrays.vectors`, one zero row where ``a`` has none."""
     a = np.asarray(a, dtype=np.float32).reshape(-1, 3)
-    if a.shape[0] == 0:
-        a = np.zeros((1, 3), np.float32)
-    return cls(*(mi.Float(np.ascontiguousarray(a[:, i])) for i in range(3)))
+    return vectors(a if a.shape[0] else np.zeros((1, 3), np.float32), cls)
 
 
 def _pad(a, dtype, value=0):

@@ -49,7 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..host_arrays import columns
+from ..host_arrays import columns, vectors
 from ..seeds import numpy_rng
 from ..tables import Tables
 from .lambertian import is_lambertian
@@ -811,7 +811,7 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     # the probes' geometry runs in Dr.Jit, fused into the ray kernels: in numpy, the float64
     # temporaries of a few 100k points (offsets, tangents, segments) cost 3–4 times the rays
     # (scenes_xml/caustic.xml: 0.10 of the receiving elements' 0.14 s)
-    Pd, Nd = _dr_vectors(P, mi.Point3f), _dr_vectors(Nrm, mi.Vector3f)
+    Pd, Nd = vectors(P, mi.Point3f), vectors(Nrm, mi.Vector3f)
     extent = [float(dr.max(Pd[i])[0] - dr.min(Pd[i])[0]) for i in range(3)]
     # opaque: it follows the random points, and as a literal in the probes' kernels it
     # compiled them anew for every seed (6 kernels a radiosity prepass)
@@ -928,12 +928,6 @@ def _probe_enclosed(scene, P, n, delta, rng):
     return np.array(enclosed, dtype=bool).reshape(m)
 
 
-def _dr_vectors(x, cls):
-    """An ``(n, 3)`` numpy array as a Dr.Jit 3-vector of float32 lanes (one copy per axis)."""
-    cols = np.ascontiguousarray(np.asarray(x).T, dtype=np.float32)
-    return cls(*(mi.Float(cols[i]) for i in range(3)))
-
-
 def _make_tables(patches, parts, tri_v, tri_p, tri_n):
     """Dr.Jit tables of the lookup, the sampler and the per-patch gathers (each padded to length
     ≥ 1), as one :class:`~mi_twopass.tables.Tables`."""
@@ -1011,8 +1005,7 @@ def _make_tables(patches, parts, tri_v, tri_p, tri_n):
         return x if x.size else np.zeros(shape, np.float32)
 
     def pt(x, cls):
-        x = f32(x, (1, 3))
-        return cls(*(mi.Float(np.ascontiguousarray(x[:, i])) for i in range(3)))
+        return vectors(f32(x, (1, 3)), cls)
 
     def pad(x, value=0):
         return np.concatenate([x, np.array([value], dtype=x.dtype)])
@@ -1036,9 +1029,8 @@ def _make_tables(patches, parts, tri_v, tri_p, tri_n):
         patch_inv_tri_area=mi.Float(pad(inv_area.astype(np.float32))),
     )
 
-    def vec(x, cls):
-        x = np.vstack([np.asarray(x, np.float64), np.zeros((1, 3))]).astype(np.float32)
-        return cls(*(mi.Float(np.ascontiguousarray(x[:, i])) for i in range(3)))
+    def vec(x, cls):  # with the zero entry at N
+        return vectors(np.vstack([np.asarray(x, np.float64), np.zeros((1, 3))]), cls)
 
     t.update(
         patch_is_diffuse=mi.Bool(pad(patches.is_diffuse.astype(bool), False)),
