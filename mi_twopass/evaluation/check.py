@@ -14,10 +14,10 @@ A row is marked "OUT" when |ratio − 1| > 1 % or block relMSE > 3e-3 (:data:`RA
 :data:`BLOCK_RELMSE_MAX`). Both include the noise of the render and of the reference: the
 default rows start with ``path`` itself at the same spp, which shows that noise (on a scene
 with fireflies ``path`` is OUT too, and every other OUT row then says it is noise-limited,
-:func:`mark_noise_limited`); raise ``spp`` / ``ref_spp`` before reading an OUT as a
-bias. An integrator that refuses the scene
-(``ValueError`` / ``NotImplementedError`` from its prepass) is reported as refused, with its
-message. The result is a report: nothing here raises for a row that is out of bounds.
+:func:`mark_noise_limited`) and the report names the ``spp`` and ``ref_spp`` at which
+path's noise would leave room to see a bias (:func:`spp_to_see_bias`). An integrator that
+refuses the scene (``ValueError`` / ``NotImplementedError`` from its prepass) is reported as
+refused, with its message. The result is a report: nothing here raises for a row that is out of bounds.
 """
 from __future__ import annotations
 
@@ -135,6 +135,34 @@ def mark_noise_limited(rows) -> None:
         r.noise_limited = bool(path is not None and path.out and r is not path and r.out)
 
 
+#: :func:`spp_to_see_bias` asks for the spp where path's own noise fills at most this share of
+#: each bound, and a reference of REF_SPP_FACTOR times that
+NOISE_SHARE = 0.25
+REF_SPP_FACTOR = 16
+
+
+def spp_to_see_bias(rows, spp: int, ref_spp: int) -> int | None:
+    """Where ``path``'s row is OUT at ``spp`` (against a reference of ``ref_spp``): the spp, a
+    power of two, at which its noise would fill at most :data:`NOISE_SHARE` of each bound with a
+    reference of :data:`REF_SPP_FACTOR` × that, so that an OUT row there is a bias. None where
+    there is no ``path`` row or it is in bounds.
+
+    An unbiased render of s spp against an independent reference of r spp has block relMSE
+    c·(1/s + 1/r) and |mean ratio − 1| of order a·√(1/s + 1/r) (the reference's noise counts
+    too: raising ``spp`` alone does not bring path in); c and a are read off path's row, and
+    (1/s + 1/r) = (1 + 1/REF_SPP_FACTOR)/s solved for s."""
+    path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
+                None)
+    if path is None or not path.out:
+        return None
+    noise = 1.0 / spp + 1.0 / ref_spp
+    c = path.block_relmse / noise
+    a2 = (path.mean_ratio - 1.0) ** 2 / noise
+    need = (1.0 + 1.0 / REF_SPP_FACTOR) * max(
+        c / (NOISE_SHARE * BLOCK_RELMSE_MAX), a2 / (NOISE_SHARE * RATIO_TOLERANCE) ** 2)
+    return 1 << max(int(math.ceil(math.log2(max(need, spp + 1)))), 0)
+
+
 def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0) -> CheckRow:
     """Render ``scene`` with a fresh integrator from ``spec`` (``NAME[:key=value...]``) at
     ``spp`` and compare with ``ref``. A ``ValueError`` / ``NotImplementedError`` raised while
@@ -218,6 +246,11 @@ def format_table(result: dict) -> str:
              f"{m['block_relmse_max']:g}",
              HEADER]
     lines += [format_row(r) for r in result["rows"]]
+    more = spp_to_see_bias(result["rows"], m["spp"], m["ref_spp"])
+    if more is not None:
+        lines.append(f"path itself is OUT: at {m['spp']} spp the bounds measure noise. To tell "
+                     f"a bias from it, rerun with --spp {more} --ref-spp "
+                     f"{REF_SPP_FACTOR * more}")
     return "\n".join(lines)
 
 

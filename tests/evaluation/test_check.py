@@ -187,3 +187,32 @@ def test_out_rows_say_noise_limited_where_path_itself_is_out():
     # no path row: nothing is marked
     check.mark_noise_limited([biased])
     assert not biased.noise_limited
+
+
+def test_path_out_names_the_spp_at_which_a_bias_could_be_told_from_noise():
+    # path's row on caustic.xml at 128 px, 64 spp against 1024 spp (session 11's check)
+    path = check.CheckRow("path", seconds=0.1, mean_ratio=1.005, block_relmse=7.62e-3, out=True)
+    rows = [path, check.CheckRow("rex", seconds=1.0, mean_ratio=1.004, block_relmse=1e-3)]
+    more = check.spp_to_see_bias(rows, 64, 1024)
+    assert more > 64 and more & (more - 1) == 0
+    # path's noise c (1/s + 1/r) predicted at that spp with its reference 16x as long: at
+    # most a quarter of the bound there, more than that at half the spp
+    c = 7.62e-3 / (1 / 64 + 1 / 1024)
+
+    def predicted(s):
+        return c * (1 / s + 1 / (check.REF_SPP_FACTOR * s))
+
+    assert predicted(more) <= check.NOISE_SHARE * check.BLOCK_RELMSE_MAX < predicted(more / 2)
+    result = {"meta": {"scene": "s.xml", "params": {}, "width": 128, "height": 128, "spp": 64,
+                       "ref_spp": 1024, "ratio_tolerance": check.RATIO_TOLERANCE,
+                       "block_relmse_max": check.BLOCK_RELMSE_MAX, "block": check.BLOCK},
+              "rows": rows}
+    assert f"--spp {more} --ref-spp {16 * more}" in check.format_table(result)
+    # a mean ratio far off asks for more samples than the block relMSE alone
+    path.mean_ratio = 1.02
+    assert check.spp_to_see_bias(rows, 64, 1024) > more
+    # path in bounds, or no path row: nothing to ask for
+    path.out = False
+    assert check.spp_to_see_bias(rows, 64, 1024) is None
+    assert "rerun" not in check.format_table(result)
+    assert check.spp_to_see_bias(rows[1:], 64, 1024) is None
