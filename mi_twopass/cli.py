@@ -3,7 +3,7 @@
     python -m mi_twopass render SCENE.xml -o out.exr [--integrator T] [-D key=value] [--spp N]
                                 [--variant V] [--seed S] [--reference]
     python -m mi_twopass compare SCENE.xml --integrators path,radiosity_gather --budget 10
-    python -m mi_twopass check SCENE.xml [--integrators a,b] [--spp 64] [--res PX]
+    python -m mi_twopass check SCENE.xml [--integrators a,b] [--spp 64] [--res PX] [--renders 2]
                                [--ref-spp N] [-D key=value] [--json PATH]
     python -m mi_twopass bench [SCENE.xml ...] [--corpus] [--integrators a,b] [--budget S]
                                [--res PX] [-D key=value] [--ref-spp N] [-o benchmarks]
@@ -88,6 +88,10 @@ def build_parser():
                    help="the film's longer side in pixels, aspect ratio kept (for scenes "
                         "without a $res parameter)")
     k.add_argument("--ref-spp", type=int, default=None, help="reference spp (default 1024)")
+    k.add_argument("--renders", type=int, default=1, choices=(1, 2),
+                   help="renders per integrator (default 1); 2: independent seeds, and the "
+                        "part of the block relMSE that is not their noise (the bias part) "
+                        "decides OUT")
     k.add_argument("--json", default=None, metavar="PATH", help="also write the report as JSON")
 
     b = sub.add_parser(
@@ -418,7 +422,7 @@ def check_command(args, out=print):
     params = parse_defines(args.defines)
     specs = _specs(args.integrators or ",".join(check.DEFAULT_INTEGRATORS), "--integrators")
     result = check.run_check(args.scene, specs, spp=spp, film_res=args.res, ref_spp=ref_spp,
-                             params=params, seed=args.seed)
+                             params=params, seed=args.seed, renders=args.renders)
     out(check.format_table(result))
     if args.json:
         check.write_json(result, args.json)

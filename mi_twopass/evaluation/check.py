@@ -68,6 +68,11 @@ class CheckRow:
     #: out of bounds where ``path``'s own row, at the same spp, is out too
     #: (:func:`mark_noise_limited`): the bounds are noise-limited there, not proof of a bias
     noise_limited: bool = False
+    #: with two renders (``renders=2``): :func:`block_bias2` and its standard error; the mean
+    #: ratio and block relMSE are then those of the two renders' mean image, and the row is
+    #: OUT on the mean ratio or this estimate (not on the block relMSE, which holds noise)
+    bias2: float | None = None
+    bias2_se: float | None = None
 
 
 def block_means(image, block: int = BLOCK) -> np.ndarray:
@@ -93,6 +98,24 @@ def block_relmse(image, ref, block: int = BLOCK, eps: float = RELMSE_EPS) -> flo
         raise ValueError(f"image shape {x.shape} differs from reference shape {r.shape}")
     b, rb = block_means(x, block), block_means(r, block)
     return float(np.mean((b - rb) ** 2 / (rb**2 + eps)))
+
+
+def block_bias2(first, second, ref, block: int = BLOCK,
+                eps: float = RELMSE_EPS) -> tuple[float, float]:
+    """The part of the block relMSE that is not the renders' noise, from two independent
+    renders: the mean over blocks and channels of (a − r)(b − r) / (r² + eps), a, b the two
+    renders' block means and r the reference's. Each render's error is its bias plus its own
+    noise, independent of the other's, so the product's expectation is bias² plus the
+    reference's own variance (the same for every integrator: ``path``'s row shows it), where
+    (a − r)² alone adds the render's variance too. Returns (estimate, its standard error over
+    blocks); the estimate may be below 0 where there is no bias."""
+    a, b, r = (block_means(np.asarray(x, dtype=np.float64), block)
+               for x in (first, second, ref))
+    if not a.shape == b.shape == r.shape:
+        raise ValueError(f"shapes differ: {a.shape}, {b.shape}, reference {r.shape}")
+    terms = ((a - r) * (b - r) / (r**2 + eps)).mean(axis=-1).ravel()  # per block
+    se = float(terms.std(ddof=1) / math.sqrt(terms.size)) if terms.size > 1 else math.inf
+    return float(terms.mean()), se
 
 
 def mean_ratio(image, ref) -> float:
@@ -127,21 +150,32 @@ def refusal_of(exc):
 
 def mark_noise_limited(rows) -> None:
     """Mark every other OUT row ``noise_limited`` where the ``path`` row (Mitsuba's unbiased
-    estimator at the same spp: the noise alone) is OUT too; where there is no ``path`` row or
-    it is in bounds, no row is marked."""
+    estimator at the same spp: the noise alone) is OUT too, unless its two renders show a
+    bias beyond their noise (:func:`clearly_biased`); where there is no ``path`` row or it is
+    in bounds, no row is marked."""
     path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
                 None)
     for r in rows:
-        r.noise_limited = bool(path is not None and path.out and r is not path and r.out)
+        r.noise_limited = bool(path is not None and path.out and r is not path and r.out
+                               and not clearly_biased(r))
 
 
+def clearly_biased(row) -> bool:
+    """Whether a row of two renders has a bias part above the bound by more than
+    :data:`BIAS_SIGMAS` standard errors: OUT whatever path's noise."""
+    return row.bias2 is not None and row.bias2 - BIAS_SIGMAS * row.bias2_se > BLOCK_RELMSE_MAX
+
+
+#: a bias part this many standard errors above the bound is a bias, not noise
+#: (:func:`clearly_biased`)
+BIAS_SIGMAS = 3.0
 #: :func:`spp_to_see_bias` asks for the spp where path's own noise fills at most this share of
 #: each bound, and a reference of REF_SPP_FACTOR times that
 NOISE_SHARE = 0.25
 REF_SPP_FACTOR = 16
 
 
-def spp_to_see_bias(rows, spp: int, ref_spp: int) -> int | None:
+def spp_to_see_bias(rows, spp: int, ref_spp: int, renders: int = 1) -> int | None:
     """Where ``path``'s row is OUT at ``spp`` (against a reference of ``ref_spp``): the spp, a
     power of two, at which its noise would fill at most :data:`NOISE_SHARE` of each bound with a
     reference of :data:`REF_SPP_FACTOR` × that, so that an OUT row there is a bias. None where
@@ -150,12 +184,13 @@ def spp_to_see_bias(rows, spp: int, ref_spp: int) -> int | None:
     An unbiased render of s spp against an independent reference of r spp has block relMSE
     c·(1/s + 1/r) and |mean ratio − 1| of order a·√(1/s + 1/r) (the reference's noise counts
     too: raising ``spp`` alone does not bring path in); c and a are read off path's row, and
-    (1/s + 1/r) = (1 + 1/REF_SPP_FACTOR)/s solved for s."""
+    (1/s + 1/r) = (1 + 1/REF_SPP_FACTOR)/s solved for s. With ``renders`` = 2 the row's image
+    is the mean of two renders: 1/(2s) in place of 1/s where c and a are read off."""
     path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
                 None)
     if path is None or not path.out:
         return None
-    noise = 1.0 / spp + 1.0 / ref_spp
+    noise = 1.0 / (renders * spp) + 1.0 / ref_spp
     c = path.block_relmse / noise
     a2 = (path.mean_ratio - 1.0) ** 2 / noise
     need = (1.0 + 1.0 / REF_SPP_FACTOR) * max(
@@ -163,43 +198,61 @@ def spp_to_see_bias(rows, spp: int, ref_spp: int) -> int | None:
     return 1 << max(int(math.ceil(math.log2(max(need, spp + 1)))), 0)
 
 
-def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0) -> CheckRow:
+def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0,
+                     renders: int = 1) -> CheckRow:
     """Render ``scene`` with a fresh integrator from ``spec`` (``NAME[:key=value...]``) at
     ``spp`` and compare with ``ref``. A ``ValueError`` / ``NotImplementedError`` raised while
     rendering (a prepass refusing the scene) gives a refused row; an integrator that cannot be
-    made from ``spec`` raises (it is the caller's error, not the scene's)."""
+    made from ``spec`` raises (it is the caller's error, not the scene's).
+
+    ``renders=2``: a second render with the next seed (its prepass built anew with it, so the
+    prepass's own noise counts as noise), the row's numbers those of the mean image, and the
+    bias part of the block relMSE (:func:`block_bias2`) beside them; the seconds are the
+    first render's."""
+    if renders not in (1, 2):
+        raise ValueError(f"renders={renders}: must be 1 or 2")
     integrator = make_integrator(spec)
-    dr.sync_thread()
-    t0 = time.perf_counter()
-    try:
-        image = mi.render(scene, integrator=integrator, spp=spp, seed=seed + RENDER_SEED_OFFSET)
-        image = np.asarray(image, dtype=np.float32)[..., :3]
-    except (ValueError, NotImplementedError, RuntimeError) as e:
-        cause = refusal_of(e)
-        if cause is None:
-            raise
-        return CheckRow(spec, refused=" ".join(str(cause).split()) or type(cause).__name__)
-    dr.sync_thread()
-    wall = time.perf_counter() - t0
-    stats = dict(getattr(integrator, "stats", {}) or {})
+    images = []
+    for k in range(renders):
+        dr.sync_thread()
+        t0 = time.perf_counter()
+        try:
+            image = mi.render(scene, integrator=integrator, spp=spp,
+                              seed=seed + RENDER_SEED_OFFSET + k)
+            images.append(np.asarray(image, dtype=np.float32)[..., :3])
+        except (ValueError, NotImplementedError, RuntimeError) as e:
+            cause = refusal_of(e)
+            if cause is None:
+                raise
+            return CheckRow(spec, refused=" ".join(str(cause).split()) or type(cause).__name__)
+        dr.sync_thread()
+        if k == 0:
+            wall = time.perf_counter() - t0
+            stats = dict(getattr(integrator, "stats", {}) or {})
     if "prepass_seconds" in stats and "render_seconds" in stats:
         pre, ren = float(stats["prepass_seconds"]), float(stats["render_seconds"])
         seconds = pre + ren
     else:
         pre, ren, seconds = 0.0, wall, wall
+    image = np.mean(images, axis=0)
     ratio = mean_ratio(image, ref)
     brel = block_relmse(image, ref)
+    bias2, bias2_se = block_bias2(*images, ref) if renders == 2 else (None, None)
+    out = is_out(ratio, brel if bias2 is None else bias2)
     return CheckRow(spec, seconds=seconds, prepass_seconds=pre, render_seconds=ren,
-                    mean_ratio=ratio, block_relmse=brel, out=is_out(ratio, brel),
+                    mean_ratio=ratio, block_relmse=brel, out=out, bias2=bias2,
+                    bias2_se=bias2_se,
                     stats={k: v for k, v in stats.items() if isinstance(v, (int, float, str))})
 
 
 def run_check(scene_path, integrators=DEFAULT_INTEGRATORS, spp: int = DEFAULT_SPP,
               film_res: int | None = None, ref_spp: int = DEFAULT_REF_SPP,
-              params: dict | None = None, seed: int = 0, log=None) -> dict:
+              params: dict | None = None, seed: int = 0, log=None,
+              renders: int = 1) -> dict:
     """Check every integrator spec on ``scene_path`` (with ``params``; the film's longer side
     set to ``film_res`` pixels when given) against the cached ``path`` reference at
-    ``ref_spp``. Returns ``{"meta": {...}, "rows": [CheckRow, ...]}``; ``log`` (e.g.
+    ``ref_spp``, each rendered ``renders`` times (2: with the bias part of the block relMSE,
+    :func:`check_integrator`). Returns ``{"meta": {...}, "rows": [CheckRow, ...]}``; ``log`` (e.g.
     ``print``) hears about each row as it is done."""
     params = dict(params or {})
     for name, value in (("spp", spp), ("ref_spp", ref_spp)):
@@ -211,7 +264,7 @@ def run_check(scene_path, integrators=DEFAULT_INTEGRATORS, spp: int = DEFAULT_SP
     w, h = (int(v) for v in scene.sensors()[0].film().crop_size())
     rows = []
     for spec in integrators:
-        row = check_integrator(scene, spec, ref, spp, seed)
+        row = check_integrator(scene, spec, ref, spp, seed, renders)
         rows.append(row)
         mark_noise_limited(rows)
         if log is not None:
@@ -219,11 +272,13 @@ def run_check(scene_path, integrators=DEFAULT_INTEGRATORS, spp: int = DEFAULT_SP
     meta = {"scene": os.fspath(scene_path), "params": params, "film_res": film_res,
             "width": w, "height": h, "spp": spp, "ref_spp": ref_spp, "seed": seed,
             "variant": mi.variant(), "ratio_tolerance": RATIO_TOLERANCE,
-            "block_relmse_max": BLOCK_RELMSE_MAX, "block": BLOCK}
+            "block_relmse_max": BLOCK_RELMSE_MAX, "block": BLOCK, "renders": renders}
     return {"meta": meta, "rows": rows}
 
 
 HEADER = f"{'integrator':<32} {'seconds':>8} {'mean ratio':>11} {'block relMSE':>13}"
+#: the column two renders add (:func:`block_bias2`)
+BIAS_HEADER = f"{'bias part ± se':>20}"
 
 
 def format_row(row: CheckRow) -> str:
@@ -232,6 +287,8 @@ def format_row(row: CheckRow) -> str:
         return f"{row.integrator:<32} refused: {row.refused}"
     line = (f"{row.integrator:<32} {row.seconds:>8.2f} {row.mean_ratio:>11.4f} "
             f"{row.block_relmse:>13.2e}")
+    if row.bias2 is not None:
+        line += f" {row.bias2:>+10.2e} ± {row.bias2_se:.1e}"
     if row.noise_limited:
         return line + "  OUT (path is OUT too: noise-limited at this spp)"
     return line + ("  OUT" if row.out else "")
@@ -240,13 +297,18 @@ def format_row(row: CheckRow) -> str:
 def format_table(result: dict) -> str:
     """The report: what was compared, the bounds, the header and one row per integrator."""
     m = result["meta"]
+    renders = m.get("renders", 1)
+    block = f"block ({m['block']}x{m['block']} px) relMSE"
     lines = [f"check {m['scene']} {m['params'] or ''} {m['width']}x{m['height']}, "
              f"{m['spp']} spp against path at {m['ref_spp']} spp; OUT: |ratio - 1| > "
-             f"{m['ratio_tolerance']:g} or block ({m['block']}x{m['block']} px) relMSE > "
-             f"{m['block_relmse_max']:g}",
-             HEADER]
+             f"{m['ratio_tolerance']:g} or {'its bias part' if renders == 2 else block} > "
+             f"{m['block_relmse_max']:g}"]
+    if renders == 2:
+        lines.append(f"two renders per row (independent seeds): ratio and {block} of their "
+                     "mean image; bias part: what of it their noise does not explain")
+    lines.append(HEADER + (BIAS_HEADER if renders == 2 else ""))
     lines += [format_row(r) for r in result["rows"]]
-    more = spp_to_see_bias(result["rows"], m["spp"], m["ref_spp"])
+    more = spp_to_see_bias(result["rows"], m["spp"], m["ref_spp"], renders)
     if more is not None:
         lines.append(f"path itself is OUT: at {m['spp']} spp the bounds measure noise. To tell "
                      f"a bias from it, rerun with --spp {more} --ref-spp "

@@ -216,3 +216,48 @@ def test_path_out_names_the_spp_at_which_a_bias_could_be_told_from_noise():
     assert check.spp_to_see_bias(rows, 64, 1024) is None
     assert "rerun" not in check.format_table(result)
     assert check.spp_to_see_bias(rows[1:], 64, 1024) is None
+
+
+def test_block_bias2_keeps_the_bias_and_drops_the_renders_noise():
+    rng = np.random.default_rng(1)
+    ref = np.full((256, 256, 3), 0.5)
+    ref[:128] = 2.0  # two regions, a bias in one of them
+
+    def render(bias):
+        noise = rng.normal(0.0, 0.3, ref.shape) * ref  # per pixel relative noise
+        return ref * (1.0 + bias) + noise
+
+    biased = np.zeros(ref.shape[:2] + (1,))
+    biased[:128] = 0.05  # +5 % where the light is
+    a, b = render(biased), render(biased)
+    est, se = check.block_bias2(a, b, ref)
+    # what the bias alone contributes: half of the blocks have (0.05 r)² / (r² + eps)
+    want = 0.5 * np.mean(0.05**2 * 4.0 / (4.0 + check.RELMSE_EPS))
+    assert abs(est - want) < 3 * se and se < 0.3 * want
+    # one render's block relMSE holds its noise too: (0.3 r)² / 64 per block, above it
+    assert check.block_relmse(a, ref) > 2 * want
+    est0, se0 = check.block_bias2(render(0.0), render(0.0), ref)
+    assert abs(est0) < 3 * se0
+    with pytest.raises(ValueError, match="shapes differ"):
+        check.block_bias2(a, b[:32], ref)
+
+
+def test_two_renders_per_row_find_a_bias_that_noise_would_hide(ref_cache):
+    """path:max_depth=2 leaves out the light of longer paths: its bias part stands out of its
+    noise; path's own is the reference's noise, near 0."""
+    result = check.run_check(CORNELL, ["path", "path:max_depth=2"], spp=16, film_res=32,
+                             ref_spp=1024, renders=2)
+    path, short = result["rows"]
+    assert path.bias2 is not None and short.bias2 is not None
+    assert abs(path.bias2) < 3 * path.bias2_se + 1e-4 and path.bias2 < path.block_relmse
+    assert short.bias2 > 3 * short.bias2_se and short.bias2 > check.BLOCK_RELMSE_MAX
+    assert short.out and path.bias2 < check.BLOCK_RELMSE_MAX
+    table = check.format_table(result)
+    assert "bias part" in table and "two renders per row" in table and "OUT" in table
+    assert result["meta"]["renders"] == 2
+    with pytest.raises(ValueError, match="renders=3"):
+        check.check_integrator(None, "path", None, 1, renders=3)
+    path.out = True  # as where path's ratio is out on its noise: a clear bias is still a bias
+    check.mark_noise_limited([path, short])
+    assert not short.noise_limited
+    assert check.clearly_biased(short) and not check.clearly_biased(path)
