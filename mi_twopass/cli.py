@@ -89,9 +89,9 @@ def build_parser():
                         "without a $res parameter)")
     k.add_argument("--ref-spp", type=int, default=None, help="reference spp (default 1024)")
     k.add_argument("--renders", type=int, default=1, choices=(1, 2),
-                   help="renders per integrator (default 1); 2: independent seeds, and the "
-                        "part of the block relMSE that is not their noise (the bias part) "
-                        "decides OUT")
+                   help="renders per integrator (default 1); 2: other samples, the same "
+                        "prepass, and the part of the block relMSE that their samples' noise "
+                        "does not explain (the bias part) decides OUT")
     k.add_argument("--json", default=None, metavar="PATH", help="also write the report as JSON")
 
     b = sub.add_parser(

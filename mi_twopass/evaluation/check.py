@@ -50,6 +50,8 @@ RATIO_TOLERANCE = 0.01
 BLOCK_RELMSE_MAX = 3e-3
 #: added to the render's seed, so that no render shares its random numbers with the reference
 RENDER_SEED_OFFSET = 0x5EED
+#: the second render's samplers are this far from the first's (``renders=2``)
+SECOND_RENDER_STRIDE = 7919
 
 
 @dataclass
@@ -102,13 +104,14 @@ def block_relmse(image, ref, block: int = BLOCK, eps: float = RELMSE_EPS) -> flo
 
 def block_bias2(first, second, ref, block: int = BLOCK,
                 eps: float = RELMSE_EPS) -> tuple[float, float]:
-    """The part of the block relMSE that is not the renders' noise, from two independent
-    renders: the mean over blocks and channels of (a − r)(b − r) / (r² + eps), a, b the two
-    renders' block means and r the reference's. Each render's error is its bias plus its own
-    noise, independent of the other's, so the product's expectation is bias² plus the
-    reference's own variance (the same for every integrator: ``path``'s row shows it), where
-    (a − r)² alone adds the render's variance too. Returns (estimate, its standard error over
-    blocks); the estimate may be below 0 where there is no bias."""
+    """The part of the block relMSE that is not the renders' noise, from two renders whose
+    samples are independent: the mean over blocks and channels of (a − r)(b − r) / (r² + eps),
+    a, b the two renders' block means and r the reference's. Each render's error is what the
+    two share (the bias, and the noise of a prepass both read) plus its own samples' noise,
+    independent of the other's, so the product's expectation is the shared error's square plus
+    the reference's own variance (the same for every integrator: ``path``'s row shows it),
+    where (a − r)² alone adds the render's variance too. Returns (estimate, its standard error
+    over blocks); the estimate may be below 0 where there is no bias."""
     a, b, r = (block_means(np.asarray(x, dtype=np.float64), block)
                for x in (first, second, ref))
     if not a.shape == b.shape == r.shape:
@@ -205,10 +208,12 @@ def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0,
     rendering (a prepass refusing the scene) gives a refused row; an integrator that cannot be
     made from ``spec`` raises (it is the caller's error, not the scene's).
 
-    ``renders=2``: a second render with the next seed (its prepass built anew with it, so the
-    prepass's own noise counts as noise), the row's numbers those of the mean image, and the
-    bias part of the block relMSE (:func:`block_bias2`) beside them; the seconds are the
-    first render's."""
+    ``renders=2``: a second render with other samples, the row's numbers those of the mean
+    image, and the bias part of the block relMSE (:func:`block_bias2`) beside them; the
+    seconds are the first render's. The second render keeps the first one's prepass (a
+    mi_twopass integrator's samplers are offset by :data:`SECOND_RENDER_STRIDE`, as the CLI's
+    passes are; another integrator gets that seed offset), so the prepass's own noise, which
+    no number of samples removes from a user's image, is counted in the bias part."""
     if renders not in (1, 2):
         raise ValueError(f"renders={renders}: must be 1 or 2")
     integrator = make_integrator(spec)
@@ -216,9 +221,13 @@ def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0,
     for k in range(renders):
         dr.sync_thread()
         t0 = time.perf_counter()
+        render_seed = seed + RENDER_SEED_OFFSET
+        if k and hasattr(integrator, "sample_seed_offset"):
+            integrator.sample_seed_offset = SECOND_RENDER_STRIDE
+        elif k:
+            render_seed += SECOND_RENDER_STRIDE
         try:
-            image = mi.render(scene, integrator=integrator, spp=spp,
-                              seed=seed + RENDER_SEED_OFFSET + k)
+            image = mi.render(scene, integrator=integrator, spp=spp, seed=render_seed)
             images.append(np.asarray(image, dtype=np.float32)[..., :3])
         except (ValueError, NotImplementedError, RuntimeError) as e:
             cause = refusal_of(e)
@@ -304,8 +313,9 @@ def format_table(result: dict) -> str:
              f"{m['ratio_tolerance']:g} or {'its bias part' if renders == 2 else block} > "
              f"{m['block_relmse_max']:g}"]
     if renders == 2:
-        lines.append(f"two renders per row (independent seeds): ratio and {block} of their "
-                     "mean image; bias part: what of it their noise does not explain")
+        lines.append(f"two renders per row (other samples, the same prepass): ratio and {block} "
+                     "of their mean image; bias part: what of it their samples' noise does not "
+                     "explain")
     lines.append(HEADER + (BIAS_HEADER if renders == 2 else ""))
     lines += [format_row(r) for r in result["rows"]]
     more = spp_to_see_bias(result["rows"], m["spp"], m["ref_spp"], renders)

@@ -261,3 +261,30 @@ def test_two_renders_per_row_find_a_bias_that_noise_would_hide(ref_cache):
     check.mark_noise_limited([path, short])
     assert not short.noise_limited
     assert check.clearly_biased(short) and not check.clearly_biased(path)
+
+
+def test_the_second_render_keeps_the_prepass_so_its_noise_counts_as_bias(monkeypatch,
+                                                                          ref_cache):
+    """A prepass's own noise is an error no number of samples removes from a user's image:
+    the second render reads the first one's prepass (built once), with other samples."""
+    from mi_twopass.integrators import radiosity_gather
+
+    built, sampler_seeds = [], []
+    cls = radiosity_gather.RadiosityGatherIntegrator
+    prepass, sample = cls.prepass, cls.sample
+
+    def counted(self, scene, seed):
+        built.append(seed)
+        return prepass(self, scene, seed)
+
+    def seen(self, scene, sampler, *args, **kwargs):
+        sampler_seeds.append(self.sample_seed_offset)
+        return sample(self, scene, sampler, *args, **kwargs)
+
+    monkeypatch.setattr(cls, "prepass", counted)
+    monkeypatch.setattr(cls, "sample", seen)
+    spec = "radiosity_gather:max_patches=16:particles_per_patch=64"
+    result = check.run_check(CORNELL, [spec], spp=4, film_res=16, ref_spp=64, renders=2)
+    row = result["rows"][0]
+    assert len(built) == 1 and row.bias2 is not None
+    assert sampler_seeds == [0, check.SECOND_RENDER_STRIDE]
