@@ -11,10 +11,11 @@ import time
 
 import numpy as np
 
+from ..evaluation.metrics import BLOCK
 from ..scene.lambertian import is_lambertian
 from . import cost
-from .pilot import (RUNS, PilotSettings, choose_pixels, path_reference, pilot, pilot_samples,
-                    pixel_means, relative_variance, run_samples, samples_array)
+from .pilot import (RUNS, PilotSettings, choose_blocks, choose_pixels, path_reference, pilot,
+                    pilot_samples, pixel_means, relative_variance, run_samples, samples_array)
 
 
 class Choice:
@@ -28,10 +29,12 @@ class Choice:
         self.seconds = seconds
 
 
-#: seed offset of the candidates' pilots (path's use seed, seed + 1, seed + 2) and of the bias
-#: checks' further samples
+#: seed offset of the candidates' pilots (path's use seed, seed + 1, seed + 2), of the bias
+#: checks' further samples, of a cut prepass's twin and of the samples that compare the two
 _CANDIDATE_SEEDS = 16
 _CHECK_SEEDS = 64
+_TWIN_SEED = 0x7717
+_FROZEN_SEEDS = 96
 
 
 def candidate_estimator(integ):
@@ -96,6 +99,51 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
         found = bias.raw > cost.CHECK_SIGMAS * bias.se
         m.bias2, m.bias_se = (bias.raw if found else 0.0), bias.se
         checks.append((total, bias.raw, bias.se, "counted" if found else "below the limit"))
+
+
+def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: float,
+               path_m, film_pixels: int):
+    """A candidate whose rexes twopass cut to fewer photons than the image needs
+    (``decision.fitted``), checked for the noise of its own photons, which no number of
+    samples per pixel removes and the path pilot, as noisy as path is where rexes pay, cannot
+    resolve: a twin is built with another seed and both are sampled on the same blocks
+    (:func:`cost.frozen_error`). Where the block relMSE that noise leaves is above
+    :func:`cost.frozen_limit`, the candidate is built again with the photons that bring it
+    there (:func:`cost.frozen_photons`) if the seconds ``room`` left in its budget pay for them
+    (:func:`cost.light_paths_within`).
+
+    Returns (integrator, Frozen as predicted for it, seconds the twin and any rebuild took),
+    or (None, reason, seconds) where the photons that would do are not affordable. Each
+    measurement or prediction is recorded in ``decision.frozen``."""
+    photons, need = decision.fitted[c.name]
+    t0 = time.perf_counter()
+    twin = candidate(c, photons=photons, twin=True)
+    twin.ensure_prepass(scene, seed + _TWIN_SEED, sensor)
+    blocks = choose_blocks(sensor, cost.FROZEN_BLOCKS, BLOCK, seed)
+    a, _ = run_samples(scene, sensor, blocks, cost.FROZEN_SAMPLES, candidate_estimator(integ),
+                       seed + _FROZEN_SEEDS)
+    b, _ = run_samples(scene, sensor, blocks, cost.FROZEN_SAMPLES, candidate_estimator(twin),
+                       seed + _FROZEN_SEEDS + 1)
+    del twin
+    frozen = cost.frozen_error(a, b, min(BLOCK * BLOCK, len(blocks.index)))
+    history = decision.frozen.setdefault(c.name, [])
+    history.append((photons, frozen))
+    limit = cost.frozen_limit()
+    want = cost.frozen_photons(photons, frozen, need)
+    if want == photons:
+        return integ, frozen, time.perf_counter() - t0
+    room -= time.perf_counter() - t0
+    if want > cost.light_paths_within(room, path_m, film_pixels):
+        return None, (f"its rexes' own noise at {photons} photons leaves a block relMSE of "
+                      f"{frozen.block:.3g} (> {limit:.3g}); the {want} photons that would bring "
+                      f"it there do not fit the {max(room, 0.0):.3g} s left of its budget"), \
+            time.perf_counter() - t0
+    integ = candidate(c, photons=want)
+    integ.ensure_prepass(scene, seed, sensor)
+    decision.fitted[c.name] = (want, need)
+    predicted = frozen.scaled(want / photons)
+    history.append((want, predicted))
+    return integ, predicted, time.perf_counter() - t0
 
 
 def path_sum_estimator(path_integ, parts_out=None):
@@ -231,6 +279,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         spent = time.perf_counter() - t_start
         integ = candidate(c)
         least, need = cost.light_paths(integ, scene, sensor)
+        least = max(least, cost.least_cut(need))
         floor = cost.prepass_floor(need, path_m, film_pixels)
         pilot_room = budget_factor * path_seconds - spent
         if measured and least < need and floor > pilot_room:
@@ -251,6 +300,11 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             decision.skipped[c.name] = (
                 f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
                 f"> {budget:.3g} s ({share:.3g} x path's predicted {path_seconds:.3g} s)")
+            if least < need and c.name not in decision.fitted:
+                decision.skipped[c.name] += (
+                    f"; cut to the fewest photons allowed, {least} (1/{cost.CUT_MAX} of the "
+                    f"image's {need}), at least "
+                    f"{cost.prepass_floor(least, path_m, film_pixels):.3g} s")
             continue
         try:
             _, seconds = integ.ensure_prepass(scene, seed, sensor)
@@ -258,13 +312,26 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             decision.skipped[c.name] = f"refused: {err}"
             continue
         build_seconds += seconds
+        frozen = None
+        if c.name in decision.fitted:
+            integ, frozen, more = fit_frozen(scene, sensor, c, integ, candidate, seed, decision,
+                                             budget - (time.perf_counter() - t_start), path_m,
+                                             film_pixels)
+            build_seconds += more
+            seconds += more
+            if integ is None:
+                decision.skipped[c.name] = frozen
+                continue
         # seeds apart from path's: the bias test takes the two pilots to be independent
         run = pilot(scene, sensor, pixels, settings, candidate_estimator(integ), seed + _CANDIDATE_SEEDS)
         bias = cost.bias_squared(run.values, path_run.values)
+        # the noise of a cut prepass's own photons is an error every pixel keeps, as a bias
+        # is: the larger of the two measurements counts (each holds it)
+        bias2 = bias.b2 if frozen is None else max(bias.b2, frozen.pixel)
         measured[c.name] = cost.Measured(
             prepass_seconds=seconds,
             seconds_per_spp=run.seconds_per_spp(film_pixels),
-            variance=relative_variance(run.values, ref), bias2=bias.b2,
+            variance=relative_variance(run.values, ref), bias2=bias2,
             mean_ratio=bias.ratio, bias_se=bias.se)
         runs[c.name] = (c, integ, run)
         best = min(best, measured[c.name].score(spp))
@@ -289,5 +356,5 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
                                              "prepasses": build_seconds})
 
 
-__all__ = ["Choice", "candidate_estimator", "check_bias", "choose", "path_sum_estimator",
-           "traits"]
+__all__ = ["Choice", "candidate_estimator", "check_bias", "choose", "fit_frozen",
+           "path_sum_estimator", "traits"]

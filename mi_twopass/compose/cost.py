@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..evaluation.metrics import RELMSE_EPS
+from ..evaluation.metrics import BLOCK, BLOCK_RELMSE_MAX, RELMSE_EPS
 
 #: a candidate is built only if its best case beats the best score so far by this factor
 MIN_GAIN = 1.25
@@ -97,6 +97,28 @@ PILOT_SHARE_MAX = 0.15
 #: traces (radiosity particles, rex photons); measured on the corpus at 128²: 2.4 (office,
 #: window_interior) to 38 (furnace), docs/design.md "twopass"
 PREPASS_FLOOR_FACTOR = 2.0
+
+#: rexes are cut to at most CUT_MAX times fewer photons than the image needs: their buckets,
+#: which stop splitting at the pixel footprint with the image's need, then stop at most
+#: √CUT_MAX = 4 pixels across, half of check's block (BLOCK = 8 pixels), so the light a bucket
+#: spreads stays mostly within the block means the bias bound reads. Further cuts blur
+#: caustics and contact shadows into square leaves: on caustic.xml at 128² the block relMSE
+#: of two renders that read one build (64 spp, check's bias part, bias and the build's own
+#: noise together) was 2.3e-2 at 2^16 photons (256× fewer than the image's 17 M, image mean
+#: +1.7 % over eight builds), 5.8e-3 at 2^18, 1.0e-3 at 2^20 (16×), 1.2e-4 at 17 M
+CUT_MAX = (BLOCK // 2) ** 2
+#: a cut rex is built a second time with another seed and both are sampled on FROZEN_BLOCKS
+#: blocks of check's grid (all of a 128² film), FROZEN_SAMPLES samples per pixel
+#: (:func:`frozen_error`); the noise of its own photons, which no number of samples per pixel
+#: removes, may fill at most FROZEN_SHARE of check's bound on the block relMSE (the rest is
+#: left to the bias). Above it, the photons are raised by (measured / limit)^(1/FROZEN_DECAY)
+#: (up to the image's need): the noise fell as photons^-0.25 to ^-1 where measured (office at
+#: 128², need 0.77 M: 5.8e-3 at 2^16, 4.3e-3 at need/4, 1.8e-3 at need; caustic: 3.3e-3,
+#: 1.2e-3, 1.7e-4 at 2^16, 2^18, 2^20), the buckets growing as the photons fall
+FROZEN_BLOCKS = 256
+FROZEN_SAMPLES = 8
+FROZEN_SHARE = 0.5
+FROZEN_DECAY = 0.5
 
 DIRECT = ("emitter", "spike")
 INDIRECT = ("path", "radiosity", "cache", "rex")
@@ -380,6 +402,78 @@ def bias_squared(values: np.ndarray, path_values: np.ndarray) -> Bias:
     return Bias(raw if raw > BIAS_SIGMAS * se else 0.0, raw, se, ratio)
 
 
+@dataclass
+class Frozen:
+    """What a prepass's own noise leaves in an image (:func:`frozen_error`): the relative
+    variance of the block means (``block``, with its standard error) and of the pixels."""
+
+    block: float
+    block_se: float
+    pixel: float
+
+    def scaled(self, factor: float) -> "Frozen":
+        """The noise predicted with ``factor`` times the light paths (:data:`FROZEN_DECAY`)."""
+        k = factor ** FROZEN_DECAY
+        return Frozen(self.block / k, self.block_se / k, self.pixel / k)
+
+
+def frozen_error(a: np.ndarray, b: np.ndarray, block_pixels: int) -> Frozen:
+    """The relative variance that a prepass's own noise (its photons) leaves in an image, from
+    two builds with independent seeds sampled on the same pixels: ``a``, ``b`` of shape
+    (pixels, samples, 3), the pixels listed block by block, ``block_pixels`` to a block
+    (:func:`mi_twopass.compose.pilot.choose_blocks`).
+
+    For a pixel (or a block mean) m_a, m_b of the two builds, E[(m_a − m_b)²] = 2σ² + s_a²/n_a +
+    s_b²/n_b: σ² the frozen variance, shared by every sample of one build, and the samples'
+    variance of the two means, which is subtracted (s² the sample variance; a block mean's is
+    the mean of its pixels' over its pixel count). Divided by R² + ε, R the two builds' mean,
+    and averaged over blocks (or pixels) and channels; each estimate may be below 0 by noise."""
+    n = a.shape[1]
+    per_block = a.shape[0] // block_pixels
+    if per_block < 1 or n < 2:
+        return Frozen(0.0, math.inf, 0.0)
+
+    def relative(ma, mb, noise):
+        R = 0.5 * (ma + mb)
+        return (0.5 * ((ma - mb) ** 2 - noise) / (R**2 + RELMSE_EPS)).mean(axis=-1)
+
+    va, vb = a.var(axis=1, ddof=1), b.var(axis=1, ddof=1)  # (pixels, 3)
+    pixel = relative(a.mean(axis=1), b.mean(axis=1), (va + vb) / n)
+    shape = (per_block, block_pixels, 3)
+    k = per_block * block_pixels
+
+    def block_mean(x):
+        return x[:k].reshape(shape).mean(axis=1)
+
+    block = relative(block_mean(a.mean(axis=1)), block_mean(b.mean(axis=1)),
+                     block_mean(va + vb) / (n * block_pixels))
+    se = float(block.std(ddof=1) / math.sqrt(block.size)) if block.size > 1 else math.inf
+    return Frozen(float(block.mean()), se, float(pixel.mean()))
+
+
+def least_cut(need: int) -> int:
+    """The fewest photons twopass may cut a rex candidate whose image needs ``need`` to:
+    need / :data:`CUT_MAX`."""
+    return int(math.ceil(need / CUT_MAX))
+
+
+def frozen_photons(photons: int, frozen: Frozen, need: int) -> int:
+    """The photons that bring a cut rex's measured ``frozen`` block noise at ``photons`` to
+    :func:`frozen_limit`, as :data:`FROZEN_DECAY` predicts, at most ``need``; ``photons``
+    where it is there already."""
+    limit = frozen_limit()
+    if frozen.block <= limit:
+        return int(photons)
+    more = math.ceil(photons * (frozen.block / limit) ** (1.0 / FROZEN_DECAY))
+    return int(max(photons, min(need, more)))
+
+
+def frozen_limit() -> float:
+    """The block relMSE a prepass's own noise may leave: :data:`FROZEN_SHARE` of check's
+    bound."""
+    return FROZEN_SHARE * BLOCK_RELMSE_MAX
+
+
 def bias_slack(m: Measured, runner_up: float, spp: int) -> float:
     """The squared relative bias candidate ``m`` could carry and still score below the
     runner-up's score at ``spp``: runner_up / T(spp) − (v/spp + b²)."""
@@ -419,6 +513,10 @@ class Decision:
     #: name -> [(samples per pixel of each pilot, raw b², its standard error, outcome)]: the
     #: bias checks of a winner that may be biased (:func:`hidden_bias_may_decide`)
     bias_checks: dict = field(default_factory=dict)
+    #: name -> [(light paths, Frozen)]: the noise of a cut prepass's own light paths, as
+    #: measured and, where it was above :func:`frozen_limit`, as predicted for the light paths
+    #: built in its place (:func:`frozen_error`)
+    frozen: dict = field(default_factory=dict)
 
     def reason(self) -> str:
         if self.chosen.name not in self.measured:  # forced, or no prepass could fit

@@ -43,6 +43,8 @@ from ..seeds import hash31
 
 #: salt of the pilot's sampler streams (mi_twopass.seeds)
 _SALT_PILOT = 0x5117
+#: salt of the blocks a prepass's own noise is measured on (choose_blocks)
+_SALT_BLOCKS = 0xB10C
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,26 @@ def choose_pixels(sensor, count: int, seed: int) -> PilotPixels:
     rng = np.random.default_rng(hash31(seed, _SALT_PILOT))
     index = np.arange(n) if count >= n else np.sort(rng.choice(n, size=count, replace=False))
     return PilotPixels(index=index.astype(np.uint32), width=width, height=height)
+
+
+def choose_blocks(sensor, count: int, size: int, seed: int) -> PilotPixels:
+    """``count`` distinct ``size`` × ``size``-pixel blocks of ``sensor``'s film, on the grid of
+    ``check``'s block means and inside the film, drawn uniformly at random (all of them where
+    the film has fewer; one block of the whole film where it is smaller than a block). The
+    pixels are listed block by block, each block's row-major."""
+    width, height = (int(v) for v in sensor.film().crop_size())
+    bw, bh = width // size, height // size
+    if bw == 0 or bh == 0:
+        return PilotPixels(index=np.arange(width * height, dtype=np.uint32), width=width,
+                           height=height)
+    rng = np.random.default_rng(hash31(seed, _SALT_BLOCKS))
+    chosen = np.arange(bw * bh) if count >= bw * bh else rng.choice(bw * bh, size=count,
+                                                                      replace=False)
+    dy, dx = np.divmod(np.arange(size * size), size)
+    rows = (chosen // bw)[:, None] * size + dy[None, :]
+    cols = (chosen % bw)[:, None] * size + dx[None, :]
+    return PilotPixels(index=(rows * width + cols).ravel().astype(np.uint32), width=width,
+                       height=height)
 
 
 def _camera_rays(sensor, pixels: PilotPixels, samples: int, sampler):

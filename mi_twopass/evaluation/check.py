@@ -33,7 +33,7 @@ import numpy as np
 
 from ..scenefile import load_scene
 from .harness import make_integrator
-from .metrics import RELMSE_EPS
+from .metrics import BLOCK, BLOCK_RELMSE_MAX, RELMSE_EPS
 from .reference import reference_image
 
 #: what ``check`` runs when no integrators are named: ``path`` first, at the same spp, the
@@ -43,11 +43,9 @@ DEFAULT_INTEGRATORS = ("path", "radiosity_gather", "spike_gather", "rex", "radia
                        "twopass")
 DEFAULT_SPP = 64
 DEFAULT_REF_SPP = 1024
-#: block side in pixels of the block relMSE
-BLOCK = 8
-#: bounds of a row that is in: |mean ratio − 1| and block relMSE
+#: bounds of a row that is in: |mean ratio − 1| and block relMSE (of BLOCK × BLOCK pixels,
+#: metrics.BLOCK_RELMSE_MAX)
 RATIO_TOLERANCE = 0.01
-BLOCK_RELMSE_MAX = 3e-3
 #: added to the render's seed, so that no render shares its random numbers with the reference
 RENDER_SEED_OFFSET = 0x5EED
 #: the second render's samplers are this far from the first's (``renders=2``)

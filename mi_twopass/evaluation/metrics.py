@@ -7,6 +7,10 @@ import numpy as np
 
 #: ε of relMSE: keeps dark pixels from dominating (docs/design.md "Measuring speed against error").
 RELMSE_EPS = 0.01
+#: the bias bound of ``check`` (and of twopass's choices): relMSE of BLOCK × BLOCK-pixel block
+#: means at most BLOCK_RELMSE_MAX (:mod:`mi_twopass.evaluation.check`)
+BLOCK = 8
+BLOCK_RELMSE_MAX = 3e-3
 
 
 def _pair(x, ref):

@@ -148,10 +148,15 @@ class TwoPassChooser(TwoPassIntegrator):
         return {"max_depth": self.max_depth, "rr_depth": self.rr_depth, "seed": self.seed,
                 "component": self.component}
 
-    def candidate(self, c: cost.Composition, photons: int = 0):
+    def candidate(self, c: cost.Composition, photons: int = 0, twin: bool = False):
         """The integrator of composition ``c`` (built once per twopass object; ``photons`` > 0:
-        its rexes with that many photons instead of the image's need)."""
+        its rexes with that many photons instead of the image's need; ``twin``: a new one,
+        not kept, for a second build of the same prepass with another seed)."""
         key = (c.plugin, c.props, photons)
+        if twin and c.plugin != "path":
+            extra = {"photons": int(photons)} if photons > 0 else {}
+            return mi.load_dict({"type": c.plugin, **self._common_props(), **dict(c.props),
+                                 **extra})
         if key not in self._candidates:
             if c.plugin == "path":
                 props = mi.Properties()
@@ -192,6 +197,10 @@ class TwoPassChooser(TwoPassIntegrator):
             "twopass_skipped": dict(d.skipped),
             "twopass_fitted": {n: {"light_paths": f[0], "image_needs": f[1]}
                                for n, f in d.fitted.items()},
+            "twopass_frozen": {n: [{"light_paths": k, "block_relmse": f.block,
+                                    "block_standard_error": f.block_se, "pixel_relmse": f.pixel}
+                                   for k, f in history]
+                               for n, history in d.frozen.items()},
             "twopass_bias_checks": {n: [{"samples_per_pixel": k, "bias2": b2,
                                          "standard_error": se, "outcome": why}
                                         for k, b2, se, why in checks]

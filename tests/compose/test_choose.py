@@ -5,6 +5,7 @@ import os
 import sys
 
 import mitsuba as mi
+import numpy as np
 import pytest
 
 import mi_twopass  # noqa: F401
@@ -105,3 +106,43 @@ def test_a_winner_that_may_be_biased_is_tested_again_before_a_long_render():
     assert decision.measured[cache_row.name].bias2 > 0 and checks[-1][3] == "counted"
     assert name == path_row.name
     assert path_row.name not in decision.bias_checks  # path is the reference: never tested
+
+
+def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypatch):
+    """A rex candidate cut below the image's need is built again with another seed; the noise
+    the two builds do not share is recorded. Below the limit the cut build is kept; above it,
+    the candidate is built with the photons that bring it there (here the need: the noise is
+    read far above the limit), or left out, with the reason, where its budget has no room."""
+    from mi_twopass.compose.choose import fit_frozen
+
+    scene = mi.load_dict(hs.box())
+    sensor = scene.sensors()[0]
+    tp = chooser()
+    rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
+    path_m = cost.Measured(0.0, 0.01, 1.0, 0.0, 1.0)
+    cut, need = 1 << 16, 1 << 18
+    film = 32 * 32
+
+    def fit(room):
+        decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
+        integ = tp.candidate(rex_row, photons=cut)
+        integ.ensure_prepass(scene, 0, sensor)
+        return decision, integ, fit_frozen(scene, sensor, rex_row, integ, tp.candidate, 0,
+                                           decision, room, path_m, film)
+
+    monkeypatch.setattr(cost, "FROZEN_SHARE", 1e9)  # any noise is below the limit
+    decision, integ, (kept, frozen, seconds) = fit(room=0.0)
+    assert kept is integ and seconds > 0 and np.isfinite(frozen.block)
+    assert decision.frozen[rex_row.name] == [(cut, frozen)]
+
+    monkeypatch.undo()
+    measure = cost.frozen_error  # the measurement, read as far above the limit
+    monkeypatch.setattr(cost, "frozen_error",
+                        lambda a, b, n: cost.Frozen(1.0, measure(a, b, n).block_se, 1.0))
+    decision, integ, (kept, why, _) = fit(room=0.0)
+    assert kept is None and f"its rexes' own noise at {cut} photons" in why
+    decision, integ, (kept, predicted, _) = fit(room=1e9)
+    assert kept is not integ and kept.photons == need
+    assert decision.fitted[rex_row.name] == (need, need)
+    assert [k for k, _ in decision.frozen[rex_row.name]] == [cut, need]
+    assert predicted.block < decision.frozen[rex_row.name][0][1].block

@@ -167,3 +167,41 @@ def test_a_hidden_bias_decides_only_where_the_affordable_bias_is_below_the_detec
                          mean_ratio=1.0)
     # no standard error (path, the reference): nothing hidden, even at a tie
     assert not cost.hidden_bias_may_decide(path, path.score(10**6), 10**6)
+
+
+def test_frozen_error_reads_the_noise_two_builds_do_not_share_and_drops_the_samples():
+    """Two builds of a prepass, each with its own noise per block (σ = 5 % of the pixel
+    value, shared by every sample of one build) and per-sample noise (30 %): the block
+    estimate is σ² within its standard error, 0 where the builds agree."""
+    rng = np.random.default_rng(3)
+    blocks, per_block, samples = 256, 64, 8
+    truth = rng.uniform(0.5, 2.0, (blocks, 1, 1, 3)) * np.ones((1, per_block, 1, 1))
+
+    def build(sigma):
+        shared = 1.0 + sigma * rng.standard_normal((blocks, 1, 1, 1))
+        value = truth * shared * (1.0 + 0.3 * rng.standard_normal((blocks, per_block, samples,
+                                                                    3)))
+        return value.reshape(blocks * per_block, samples, 3)
+
+    f = cost.frozen_error(build(0.05), build(0.05), per_block)
+    want = np.mean(0.05**2 * truth[:, 0, 0] ** 2 / (truth[:, 0, 0] ** 2 + 0.01))
+    assert abs(f.block - want) < 3 * f.block_se and f.block_se < 0.25 * want
+    f0 = cost.frozen_error(build(0.0), build(0.0), per_block)
+    assert abs(f0.block) < 3 * f0.block_se
+    # the per-sample noise (0.3² / 8 per pixel mean) is subtracted, not read as frozen
+    assert abs(f0.pixel) < 0.1 * 0.3**2 / samples
+
+
+def test_cut_photons_stay_within_the_blur_limit_and_rise_with_measured_noise():
+    need = 16_000_000
+    assert cost.least_cut(need) == need // cost.CUT_MAX == need // (cost.BLOCK // 2) ** 2
+    limit = cost.frozen_limit()
+    assert limit == cost.FROZEN_SHARE * cost.BLOCK_RELMSE_MAX
+    quiet = cost.Frozen(block=0.5 * limit, block_se=1e-4, pixel=1e-3)
+    assert cost.frozen_photons(1_000_000, quiet, need) == 1_000_000
+    noisy = cost.Frozen(block=2.0 * limit, block_se=1e-4, pixel=1e-2)
+    more = cost.frozen_photons(1_000_000, noisy, need)
+    # (2)^(1/FROZEN_DECAY) as many photons, and the noise predicted for them is the limit
+    assert more == int(np.ceil(1_000_000 * 2.0 ** (1 / cost.FROZEN_DECAY)))
+    assert noisy.scaled(more / 1_000_000).block == pytest.approx(limit, rel=1e-6)
+    assert cost.frozen_photons(1_000_000, cost.Frozen(1.0, 1e-4, 1.0), need) == need
