@@ -73,6 +73,9 @@ class CheckRow:
     #: OUT on the mean ratio or this estimate (not on the block relMSE, which holds noise)
     bias2: float | None = None
     bias2_se: float | None = None
+    #: ... and the standard error of the mean ratio, from the two renders' block differences
+    #: (:func:`ratio_se`)
+    ratio_se: float | None = None
 
 
 def block_means(image, block: int = BLOCK) -> np.ndarray:
@@ -119,6 +122,18 @@ def block_bias2(first, second, ref, block: int = BLOCK,
     return float(terms.mean()), se
 
 
+def ratio_se(first, second, ref, block: int = BLOCK) -> float:
+    """The standard error of the mean ratio of the mean of two renders whose samples are
+    independent: the image mean of (a + b)/2 has the variance var(a_k − b_k)/(4n) over the
+    n block means (their noise is independent between blocks), over the reference's mean."""
+    d = (block_means(np.asarray(first, dtype=np.float64), block)
+         - block_means(np.asarray(second, dtype=np.float64), block)).mean(axis=-1).ravel()
+    r = float(np.mean(np.asarray(ref, dtype=np.float64)))
+    if d.size < 2 or r == 0.0:
+        return math.inf
+    return float(np.sqrt(d.var(ddof=1) / (4 * d.size)) / r)
+
+
 def mean_ratio(image, ref) -> float:
     """Mean of the image over the reference's (pixels and channels); 1 when both are 0, inf
     when only the reference is."""
@@ -150,26 +165,31 @@ def refusal_of(exc):
 
 
 def mark_noise_limited(rows) -> None:
-    """Mark every other OUT row ``noise_limited`` where the ``path`` row (Mitsuba's unbiased
-    estimator at the same spp: the noise alone) is OUT too, unless its two renders show a
-    bias beyond their noise (:func:`clearly_biased`); where there is no ``path`` row or it is
-    in bounds, no row is marked."""
+    """Mark OUT rows ``noise_limited``, each by what it has measured. A row of two renders
+    (:func:`check_integrator`, ``renders=2``) by its own standard errors: where its mean ratio
+    and its bias part are both within :data:`NOISE_SIGMAS` of the bounds
+    (:func:`within_noise`). A row of one render by ``path``'s (Mitsuba's unbiased estimator
+    at the same spp: the noise alone): where ``path``'s row is OUT too; where there is no
+    ``path`` row or it is in bounds, no row of one render is marked."""
     path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
                 None)
     for r in rows:
-        r.noise_limited = bool(path is not None and path.out and r is not path and r.out
-                               and not clearly_biased(r))
+        if r.bias2 is not None:
+            r.noise_limited = bool(r.out and within_noise(r))
+        else:
+            r.noise_limited = bool(path is not None and path.out and r is not path and r.out)
 
 
-def clearly_biased(row) -> bool:
-    """Whether a row of two renders has a bias part above the bound by more than
-    :data:`BIAS_SIGMAS` standard errors: OUT whatever path's noise."""
-    return row.bias2 is not None and row.bias2 - BIAS_SIGMAS * row.bias2_se > BLOCK_RELMSE_MAX
+def within_noise(row) -> bool:
+    """Whether a row of two renders is out of bounds by less than :data:`NOISE_SIGMAS`
+    standard errors on both its mean ratio and its bias part: more samples could bring it in."""
+    return (abs(row.mean_ratio - 1.0) - NOISE_SIGMAS * row.ratio_se <= RATIO_TOLERANCE
+            and row.bias2 - NOISE_SIGMAS * row.bias2_se <= BLOCK_RELMSE_MAX)
 
 
-#: a bias part this many standard errors above the bound is a bias, not noise
-#: (:func:`clearly_biased`)
-BIAS_SIGMAS = 3.0
+#: an OUT row of two renders within this many standard errors of the bounds is noise-limited
+#: (:func:`within_noise`)
+NOISE_SIGMAS = 2.0
 #: :func:`spp_to_see_bias` asks for the spp where path's own noise fills at most this share of
 #: each bound, and a reference of REF_SPP_FACTOR times that
 NOISE_SHARE = 0.25
@@ -245,10 +265,11 @@ def check_integrator(scene, spec: str, ref, spp: int, seed: int = 0,
     ratio = mean_ratio(image, ref)
     brel = block_relmse(image, ref)
     bias2, bias2_se = block_bias2(*images, ref) if renders == 2 else (None, None)
+    rse = ratio_se(*images, ref) if renders == 2 else None
     out = is_out(ratio, brel if bias2 is None else bias2)
     return CheckRow(spec, seconds=seconds, prepass_seconds=pre, render_seconds=ren,
                     mean_ratio=ratio, block_relmse=brel, out=out, bias2=bias2,
-                    bias2_se=bias2_se,
+                    bias2_se=bias2_se, ratio_se=rse,
                     stats={k: v for k, v in stats.items() if isinstance(v, (int, float, str))})
 
 
@@ -285,7 +306,7 @@ def run_check(scene_path, integrators=DEFAULT_INTEGRATORS, spp: int = DEFAULT_SP
 
 HEADER = f"{'integrator':<32} {'seconds':>8} {'mean ratio':>11} {'block relMSE':>13}"
 #: the column two renders add (:func:`block_bias2`)
-BIAS_HEADER = f"{'bias part ± se':>20}"
+BIAS_HEADER = f"{'bias part ± se':>20} {'ratio se':>10}"
 
 
 def format_row(row: CheckRow) -> str:
@@ -295,7 +316,10 @@ def format_row(row: CheckRow) -> str:
     line = (f"{row.integrator:<32} {row.seconds:>8.2f} {row.mean_ratio:>11.4f} "
             f"{row.block_relmse:>13.2e}")
     if row.bias2 is not None:
-        line += f" {row.bias2:>+10.2e} ± {row.bias2_se:.1e}"
+        line += f" {row.bias2:>+10.2e} ± {row.bias2_se:.1e} {row.ratio_se:>10.4f}"
+        if row.noise_limited:
+            return line + (f"  OUT (within {NOISE_SIGMAS:g} se of the bounds: noise-limited "
+                           "at this spp)")
     if row.noise_limited:
         return line + "  OUT (path is OUT too: noise-limited at this spp)"
     return line + ("  OUT" if row.out else "")

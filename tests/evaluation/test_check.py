@@ -240,6 +240,10 @@ def test_block_bias2_keeps_the_bias_and_drops_the_renders_noise():
     assert abs(est0) < 3 * se0
     with pytest.raises(ValueError, match="shapes differ"):
         check.block_bias2(a, b[:32], ref)
+    # the mean ratio's standard error: the noise of the mean of two renders' image means
+    sigma = np.sqrt(np.mean((0.3 * ref) ** 2))  # per pixel and channel, all independent
+    want_se = sigma / np.sqrt(2 * ref.size) / ref.mean()
+    assert check.ratio_se(render(0.0), render(0.0), ref) == pytest.approx(want_se, rel=0.15)
 
 
 def test_two_renders_per_row_find_a_bias_that_noise_would_hide(ref_cache):
@@ -257,10 +261,13 @@ def test_two_renders_per_row_find_a_bias_that_noise_would_hide(ref_cache):
     assert result["meta"]["renders"] == 2
     with pytest.raises(ValueError, match="renders=3"):
         check.check_integrator(None, "path", None, 1, renders=3)
-    path.out = True  # as where path's ratio is out on its noise: a clear bias is still a bias
+    # a row of two renders is judged by its own standard errors, whatever path's row says
+    assert short.ratio_se > 0 and path.ratio_se > 0
+    path.out = True
     check.mark_noise_limited([path, short])
-    assert not short.noise_limited
-    assert check.clearly_biased(short) and not check.clearly_biased(path)
+    assert not short.noise_limited and not check.within_noise(short)
+    assert check.within_noise(path) and path.noise_limited
+    assert check.format_row(path).endswith("noise-limited at this spp)")
 
 
 def test_the_second_render_keeps_the_prepass_so_its_noise_counts_as_bias(monkeypatch,
