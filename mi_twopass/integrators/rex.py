@@ -11,7 +11,8 @@ import drjit as dr
 import mitsuba as mi
 
 from .. import units
-from ..prepass.rex_textures import KIND_NONE, MAX_LEVEL, NO_SHAPE, RexSettings, photon_budget
+from ..prepass.rex_textures import (KIND_NONE, MAX_LEVEL, NO_SHAPE, SPLIT_LIMIT, RexSettings,
+                                    photon_budget)
 from ..prepass.rex_textures import build as build_rexes
 from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
@@ -116,10 +117,11 @@ class RexIntegrator(TwoPassIntegrator):
     4 × split_limit × that bucket count / that rate: the photons with which every bucket the eye
     sees splits down to the pixel footprint and fills there to the soft cap's threshold (past
     that, photons refine buckets the screen cannot show). With split_limit photons per bucket
-    instead of 4×, the office's ceiling-lit walls were mottled (8×8-block relMSE 6e-3 at 128²).
+    instead of 4×, the office's ceiling-lit walls were mottled (8×8-block relMSE 6e-3 at 128²),
+    and with 4 × 16 they were at the bound (``split_limit``'s default is 32 since session 12).
     The budget lies within [2^16, 2^24] photons and keeps the records below 8M (memory). So a
-    closed Cornell box (2.4 deposits per photon) shoots 1.2M photons at 128² and 3.4M (the
-    record cap) at 256² and 1920×1080 (``bench --prepass`` records them), and ``caustic.xml``,
+    closed Cornell box (2.4 deposits per photon) shoots 2.4M photons at 128² (1.2M with
+    ``split_limit`` 16) and 3.4M (the record cap) at 256² and 1920×1080, the office 1.5M at 128² (``bench --prepass`` records them), and ``caustic.xml``,
     whose photons mostly leave the scene (0.14 deposits each), the 2^24 cap at 128² and 256²
     (``stats["photons"]`` after a render; its prepass 2.3–2.8 s warm at 256²). A scene seen
     mostly through non-Lambertian surfaces needs few.
@@ -171,8 +173,11 @@ class RexIntegrator(TwoPassIntegrator):
          pixel count, within [2^16, 2^22] (the budget rule before 2026-11-25 was 256).
      * - split_limit
        - |int|
-       - A rex bucket holding more photons than this splits into four (default: 16; the paper
-         asks for at least 10 photons per bucket).
+       - A rex bucket holding more photons than this splits into four (default: 32; the paper
+         asks for at least 10 photons per bucket). It also sets the automatic photon budget
+         (4 × split_limit photons per visible bucket): with 16, the office's rexes left a
+         block relMSE of 1.8–3.3e-3 over four builds at 128² (``check --renders 2``, the
+         bound 3e-3), with 32 0.7–1.2e-3 over three.
      * - max_level
        - |int|
        - Deepest rex level, whatever the size pass says (default: 14, at most 20).
@@ -221,7 +226,7 @@ class RexIntegrator(TwoPassIntegrator):
         if self.photons == 0:
             raise ValueError("photons=0: must be >= 1 (or -1 for the default)")
         self.photons_per_pixel = read_float(props, "photons_per_pixel", 0.0, minimum=0.0)
-        self.split_limit = read_int(props, "split_limit", 16, minimum=1)
+        self.split_limit = read_int(props, "split_limit", SPLIT_LIMIT, minimum=1)
         self.max_level = read_int(props, "max_level", 14, minimum=0)
         if self.max_level > MAX_LEVEL:
             raise ValueError(f"max_level={self.max_level}: must be <= {MAX_LEVEL}")

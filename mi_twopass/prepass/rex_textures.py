@@ -113,6 +113,13 @@ LEAF_PHOTONS = 16
 #: the light quadtrees of all emitters together have at most about this many leaves (pilot
 #: rays and numpy bookkeeping per node; more photons shoot more rounds per leaf)
 MAX_LIGHT_LEAVES = 1 << 18
+#: a bucket holding more photons than this splits (the default of rex's ``split_limit``): 32,
+#: not 16, for the automatic budget's sake (CAP_FILL × split_limit photons per visible bucket):
+#: with 16 the office's rexes at 128² left a block relMSE of 1.8e-3, 3.3e-3, 2.2e-3 and 3.1e-3
+#: over four builds (``check --renders 2``: the part two renders of one build share; check's
+#: bound 3e-3), with 32 7.4e-4, 7.0e-4 and 1.2e-3 over three; the check's seconds (prepass
+#: and 64 spp) went from 1.6–2.6 s to 2.8–3.9 s
+SPLIT_LIMIT = 32
 #: the automatic budget fills every visible bucket at its cap to this × split_limit photons
 #: (the soft cap's threshold one level past the cap)
 CAP_FILL = 4
@@ -161,7 +168,7 @@ class RexSettings:
     """Every parameter of the rex prepass (the integrator's docstring explains each)."""
 
     photons: int = 0  # ≤ 0: what the image needs (photon_need)
-    split_limit: int = 16
+    split_limit: int = SPLIT_LIMIT
     max_level: int = 14
     bucket_pixels: float = 1.0
     direct: str = "rex"  # "rex": rexes hold direct light; "shadow": indirect + caustics only
@@ -986,7 +993,8 @@ def photon_need(scene, tables, seen_rex, need, settings, seed, power, adapt_dim,
     to the cap and fills there: :data:`CAP_FILL` × ``split_limit`` photons each, the count past
     which the soft cap splits a bucket at its cap again (§3.4.1, §4.1). Only ``split_limit``
     each (buckets at the cap, but as noisy as the split rule allows: 25 % at 16) left the
-    office's ceiling-lit walls mottled (8×8-block relMSE 6e-3 at 128², the bound 3e-3).
+    office's ceiling-lit walls mottled (8×8-block relMSE 6e-3 at 128², the bound 3e-3); with
+    4 × 16 they were at the bound, hence :data:`SPLIT_LIMIT` = 32.
 
     A probe shoot of :data:`PROBE_PHOTONS` stratified photons (no light-quadtree adaptation)
     measures how many deposits a photon leaves on rexes the eye sees (``seen_rex``); the budget
