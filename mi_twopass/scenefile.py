@@ -21,6 +21,15 @@ class SceneFileError(ValueError):
 DEFAULT_FILM_SIZE = (768, 576)
 
 
+def scene_label(path) -> str:
+    """A scene's name in tables: the file's stem (``office`` for scenes_xml/office.xml), or its
+    folder's name where the stem names no scene (``veach-bidir`` for .../veach-bidir/scene.xml,
+    ``tut-cbox`` for .../tut-cbox/cbox.xml)."""
+    stem = os.path.splitext(os.path.basename(path))[0]
+    return os.path.basename(os.path.dirname(os.path.abspath(path))) if stem in ("scene", "cbox") \
+        else stem
+
+
 def parse_value(text: str):
     """``"32"`` → 32, ``"0.5"`` → 0.5, anything else stays a string (as Mitsuba's ``-D``)."""
     for cast in (int, float):

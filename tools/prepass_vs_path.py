@@ -11,14 +11,13 @@ path's time (≤ 1.00 meets the target). An integrator that refuses the scene (a
 example) shows the start of its message.
 """
 import argparse
-import os
 import time
 
 import drjit as dr
 import mitsuba as mi
 
 import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
-from mi_twopass.scenefile import load_scene
+from mi_twopass.scenefile import load_scene, scene_label
 
 PATH_SPP = 32
 DEFAULT_INTEGRATORS = "radiosity_gather,spike_gather,radiance_cache,rex"
@@ -51,13 +50,6 @@ def prepass_seconds(scene, name: str, builds: int = 2):
         seconds = time.perf_counter() - t0
         best = seconds if best is None else min(best, seconds)
     return best
-
-
-def scene_label(path: str) -> str:
-    """``office`` for scenes_xml/office.xml, ``veach-bidir`` for .../veach-bidir/scene.xml."""
-    stem = os.path.splitext(os.path.basename(path))[0]
-    return os.path.basename(os.path.dirname(os.path.abspath(path))) if stem in ("scene", "cbox") \
-        else stem
 
 
 def main():
