@@ -8,7 +8,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.sh_cache import ALPHA_REL, CacheSettings, cached_surface
+from ..prepass.sh_cache import ALPHA_REL, BRIGHT_CONTRAST, CacheSettings, cached_surface
 from ..prepass.sh_cache import build as build_cache
 from ..prepass.spike_grid import SpikeSettings
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
@@ -187,6 +187,15 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
      * - rays_per_cluster
        - |int|
        - Gather rays per SH sample (default: 128).
+     * - bright_contrast
+       - |float|
+       - Radiosity patches whose reflected radiosity is at least this many times the cached
+         patches' area-weighted mean (and together carry ≥ 2 % of the reflected power) are
+         not cached: the far and near fields read nothing there and the cache vertex's BSDF
+         ray that meets them traces on (default: 4, the contrast of GSII's virtual
+         luminaires; ≥ 1). An order-2 SH field cannot hold a reflector that much brighter
+         than the rest (a lamp shade's inside): cached, it made ±20–50 % blotches that moved
+         with the prepass seed (:func:`~mi_twopass.prepass.sh_cache.uncache_bright`).
      * - max_near_triangles
        - |int|
        - Budget of the lazy split (§5): splitting stops (longest edges first) when the near
@@ -241,11 +250,14 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.near_far = read_choice(props, "near_far", "direction", ("direction", "mean"))
         self.direct = read_choice(props, "direct", "emitter", DIRECT_MODES)
+        self.bright_contrast = read_float(props, "bright_contrast", BRIGHT_CONTRAST,
+                                          minimum=1.0)
 
     def settings(self):
         return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.radiosity,
                 self.max_points, self.max_clusters, self.rays_per_cluster,
-                self.max_near_triangles, self.near_cell_rel, self.direct)
+                self.max_near_triangles, self.near_cell_rel, self.direct,
+                self.bright_contrast)
 
     @property
     def cache_settings(self) -> CacheSettings:
@@ -254,6 +266,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                              fake_gi=self.fake_gi, ambient=self.ambient, radiosity=self.radiosity,
                              max_points=self.max_points, max_clusters=self.max_clusters,
                              rays_per_cluster=self.rays_per_cluster,
+                             bright_contrast=self.bright_contrast,
                              max_near_triangles=self.max_near_triangles,
                              near_cell_rel=self.near_cell_rel, ignore_media=self.ignore_media,
                              path_only=not self.reads_cache and self.debug == "none",

@@ -55,7 +55,7 @@ from ..scene.patches import build_patches
 from ..seeds import hash31
 from ..tables import Tables
 from .near_field import build_near_field, buried_triangles, split_near_triangles
-from .radiosity import RadiositySettings
+from .radiosity import VL_CONTRAST, RadiositySettings, reclassified_patches
 from .radiosity import build as build_radiosity
 from .spike_grid import SpikeSettings, build_spike_prepass
 from ..scene.lambertian import LambertianShapes, lambertian_flags
@@ -562,6 +562,9 @@ def check_no_media(scene):
 #: 0.03, 0.0052 at 0.05, 0.0075 at 0.1 (darker as alpha grows: the visibility assumption of
 #: B_C, §6); 0.03 needs about half the SH samples of 0.02.
 ALPHA_REL = 0.03
+#: a patch whose reflected radiosity is this many times the cached patches' area-weighted mean
+#: is not cached (:func:`uncache_bright`): the contrast of GSII's virtual luminaires
+BRIGHT_CONTRAST = VL_CONTRAST
 
 
 @dataclass(frozen=True)
@@ -578,6 +581,9 @@ class CacheSettings:
     max_points: int = 4096
     max_clusters: int = 1024
     rays_per_cluster: int = 128
+    #: patches whose reflected radiosity is this many times the cached patches' mean are not
+    #: cached (:func:`uncache_bright`)
+    bright_contrast: float = BRIGHT_CONTRAST
     max_near_triangles: int = 1 << 17
     near_cell_rel: float = 1.0
     ignore_media: bool = False
@@ -656,6 +662,40 @@ def build(scene, settings: CacheSettings, seed: int, progress: bool = True,
     return pre
 
 
+def uncache_bright(solution, contrast: float = BRIGHT_CONTRAST) -> np.ndarray:
+    """Stop caching the bright reflectors of the coarse ``solution``: the patches whose
+    reflected radiosity is at least ``contrast`` × the area-weighted mean of the cached ones,
+    where together they carry at least 2 % of the reflected power
+    (:func:`~mi_twopass.prepass.radiosity.reclassified_patches` with GSII's fraction of the
+    maximum at 0: the contrast alone decides).
+
+    An order-2 SH field cannot hold light from a reflector that much brighter than the rest:
+    fitted from the few gather rays of a cluster that hit it and spread by the RBF
+    interpolation to points that do not see it, it left blotches of ±20–50 % in 8×8-pixel
+    blocks around veach-bidir's lamps, in another place for each prepass seed (``check
+    --renders 2`` at 128 px, 64 spp: bias part 9.4e-3, 3.4e-2, 1.1e-2, 1.9e-2 over four
+    seeds, the bound 3e-3; neither 8192 gather rays per cluster nor 8× the particles brought
+    seed 1 under 1.1e-2). Uncached, they send no B_r into the far field or the near field, and
+    the cache vertex's BSDF ray that meets them traces on, as for every surface the cache does
+    not hold: seeds 0 and 1 read −4.2e-4 and −2.5e-4 (± 2.2e-3). Uncaching only those also
+    above half the brightest (GSII's rule, the virtual luminaires') left 4.4–7.2e-3.
+
+    Done once per solution (a solve shared through a memo is not uncached twice: the next
+    brightest would follow). Returns the patch ids."""
+    patches = solution.patches
+    done = getattr(patches, "bright_uncached", None)
+    if done is not None:
+        return done
+    Br = np.asarray(solution.B_reflected).mean(axis=1)
+    ids = reclassified_patches(Br, patches.area, patches.is_diffuse, 0.0, contrast)
+    if ids.size:
+        mask = np.zeros(patches.count, dtype=bool)
+        mask[ids] = True
+        patches.uncache(mask)
+    patches.bright_uncached = ids
+    return ids
+
+
 def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
                  progress: bool = True, memo=None) -> CachePrepass:
     """:func:`build` without the spike lists."""
@@ -672,6 +712,8 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
     alpha = cache_alpha(scene, settings, None if points is None else points[0])
     rad = None if settings.fake_gi else build_radiosity(scene, settings.radiosity, seed, progress,
                                                         sensor=sensor, memo=memo)
+    if rad is not None:
+        uncache_bright(rad.solution, settings.bright_contrast)
     patches = rad.patches if rad is not None else \
         build_patches(scene, max_patches=settings.radiosity.max_patches, seed=seed)
     # a near triangle sends R_t only from a cached patch (as cached_surface at render time)
