@@ -75,3 +75,21 @@ def test_path_is_measured_against_the_other_pilots_so_its_fireflies_are_not_norm
     assert own < 0.3 * true_v and plain < 0.5 * true_v
     assert against_others == pytest.approx(true_v, rel=0.2)
     assert np.array_equal(pl.path_reference(path, []), pl.pixel_means(path))  # no others
+
+
+def test_blocks_lie_on_checks_grid_inside_the_film_listed_block_by_block():
+    def sensor(w, h):
+        return mi.load_dict({"type": "perspective", "film": {"type": "hdrfilm", "width": w,
+                                                             "height": h}})
+
+    blocks = pl.choose_blocks(sensor(44, 20), 3, 8, seed=1)  # 5 x 2 whole blocks
+    idx = blocks.index.astype(np.int64).reshape(3, 64)
+    rows, cols = idx // 44, idx % 44
+    for r, c in zip(rows, cols):  # each block: one 8 x 8 square on the grid, row-major
+        assert r[0] % 8 == 0 and c[0] % 8 == 0 and r.max() < 16 and c.max() < 40
+        assert np.array_equal(r - r[0], np.repeat(np.arange(8), 8))
+        assert np.array_equal(c - c[0], np.tile(np.arange(8), 8))
+    assert len({(r[0], c[0]) for r, c in zip(rows, cols)}) == 3
+    assert len(pl.choose_blocks(sensor(44, 20), 100, 8, seed=1).index) == 10 * 64
+    # a film smaller than a block: the whole film, one block
+    assert np.array_equal(pl.choose_blocks(sensor(6, 5), 4, 8, 0).index, np.arange(30))
