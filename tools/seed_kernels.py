@@ -1,8 +1,9 @@
 """Kernels an integrator compiles anew for each render seed, and what a fresh seed costs.
 
-    .venv/bin/python tools/seed_kernels.py scenes_xml/caustic.xml radiosity_gather [--res 256]
+    .venv/bin/python tools/seed_kernels.py scenes_xml/caustic.xml radiosity_gather [--res 256] \
+        [--spp 4]
 
-Renders 4 spp with a fresh integrator at three consecutive random seeds in one process and
+Renders ``--spp`` (4) with a fresh integrator at three consecutive random seeds in one process and
 prints, per render: wall seconds, Dr.Jit kernels launched, kernels compiled (not found in
 memory), kernels read from the on-disk cache. The bench renders every point at a new seed, so a
 kernel with the seed (or a value that follows it) as a literal is compiled at every point
@@ -25,6 +26,8 @@ def main():
     ap.add_argument("scene")
     ap.add_argument("integrator")
     ap.add_argument("--res", type=int, default=256, help="film's longer side in pixels")
+    ap.add_argument("--spp", type=int, default=4,
+                    help="samples per pixel (twopass builds what that many samples pay for)")
     a = ap.parse_args()
     scene = load_scene(a.scene, film_res=a.res)
     base = random.randrange(1 << 30)
@@ -32,7 +35,7 @@ def main():
         integrator = mi.load_dict({"type": a.integrator})
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
             t0 = time.perf_counter()
-            mi.render(scene, integrator=integrator, spp=4, seed=seed).numpy()
+            mi.render(scene, integrator=integrator, spp=a.spp, seed=seed).numpy()
             seconds = time.perf_counter() - t0
             history = dr.kernel_history()
         jit = [k for k in history if k.get("type") == dr.KernelType.JIT]
