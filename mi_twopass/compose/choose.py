@@ -325,14 +325,12 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         # seeds apart from path's: the bias test takes the two pilots to be independent
         run = pilot(scene, sensor, pixels, settings, candidate_estimator(integ), seed + _CANDIDATE_SEEDS)
         bias = cost.bias_squared(run.values, path_run.values)
-        # the noise of a cut prepass's own photons is an error every pixel keeps, as a bias
-        # is: the larger of the two measurements counts (each holds it)
-        bias2 = bias.b2 if frozen is None else max(bias.b2, frozen.pixel)
         measured[c.name] = cost.Measured(
             prepass_seconds=seconds,
             seconds_per_spp=run.seconds_per_spp(film_pixels),
-            variance=relative_variance(run.values, ref), bias2=bias2,
-            mean_ratio=bias.ratio, bias_se=bias.se)
+            variance=relative_variance(run.values, ref), bias2=bias.b2,
+            mean_ratio=bias.ratio, bias_se=bias.se,
+            frozen=0.0 if frozen is None else max(frozen.pixel, 0.0))
         runs[c.name] = (c, integ, run)
         best = min(best, measured[c.name].score(spp))
 

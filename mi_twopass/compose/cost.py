@@ -235,9 +235,14 @@ class Measured:
     #: whichever candidate renders, so the final choice counts them for every candidate
     #: instead of each one's own prepass (:func:`spend`); None while candidates are built
     sunk_seconds: float | None = None
+    #: the pixel relMSE a cut prepass's own noise leaves (:class:`Frozen`, measured by two
+    #: builds): an error of every pixel that no number of samples removes, as a bias's is. The
+    #: bias estimate against path holds it too, so the larger of the two counts (a bias test
+    #: that finds b² below the pilot's limit sets ``bias2`` to 0, not this)
+    frozen: float = 0.0
 
     def predicted_error(self, spp: int) -> float:
-        return self.variance / spp + self.bias2
+        return self.variance / spp + max(self.bias2, self.frozen)
 
     def predicted_seconds(self, spp: int) -> float:
         spent = self.prepass_seconds if self.sunk_seconds is None else self.sunk_seconds

@@ -191,7 +191,8 @@ class TwoPassChooser(TwoPassIntegrator):
             "twopass_candidates": {
                 n: {"prepass_seconds": m.prepass_seconds, "seconds_per_spp": m.seconds_per_spp,
                     "relative_variance": m.variance, "bias2": m.bias2,
-                    "bias2_standard_error": m.bias_se, "mean_ratio": m.mean_ratio,
+                    "bias2_standard_error": m.bias_se, "frozen": m.frozen,
+                    "mean_ratio": m.mean_ratio,
                     "score": m.score(d.spp)}
                 for n, m in d.measured.items()},
             "twopass_skipped": dict(d.skipped),

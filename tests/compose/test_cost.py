@@ -205,3 +205,12 @@ def test_cut_photons_stay_within_the_blur_limit_and_rise_with_measured_noise():
     assert more == int(np.ceil(1_000_000 * 2.0 ** (1 / cost.FROZEN_DECAY)))
     assert noisy.scaled(more / 1_000_000).block == pytest.approx(limit, rel=1e-6)
     assert cost.frozen_photons(1_000_000, cost.Frozen(1.0, 1e-4, 1.0), need) == need
+
+
+def test_a_prepass_own_noise_counts_as_an_error_no_sample_removes():
+    m = cost.Measured(prepass_seconds=1.0, seconds_per_spp=0.01, variance=0.5, bias2=0.0,
+                      mean_ratio=1.0, frozen=0.002)
+    assert m.predicted_error(100) == pytest.approx(0.005 + 0.002)
+    assert m.predicted_error(10**9) == pytest.approx(0.002, rel=1e-6)
+    m.bias2 = 0.003  # a bias found against path holds the frozen noise too: the larger counts
+    assert m.predicted_error(10**9) == pytest.approx(0.003, rel=1e-6)
