@@ -185,6 +185,21 @@ def test_check_prints_a_table_and_json(tmp_path, ref_cache, capsys):
     assert data["meta"]["width"] == data["meta"]["height"] == 12
 
 
+def test_check_with_two_renders_prints_the_bias_part_and_writes_it(tmp_path, ref_cache, capsys):
+    js = tmp_path / "check2.json"
+    code = cli.main(["check", os.path.join(SCENES, "cornell_box.xml"), "--res", "16", "--spp",
+                     "4", "--ref-spp", "32", "--renders", "2", "--integrators", "path",
+                     "--json", str(js)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "bias part" in text and "two renders per row" in text
+    row = json.loads(js.read_text())["rows"][0]
+    assert row["bias2"] is not None and row["bias2_se"] > 0 and row["ratio_se"] > 0
+    assert json.loads(js.read_text())["meta"]["renders"] == 2
+    with pytest.raises(SystemExit):  # only 1 or 2
+        cli.main(["check", os.path.join(SCENES, "cornell_box.xml"), "--renders", "3"])
+
+
 @pytest.mark.skipif(not os.path.isfile(os.path.join(SHARED, "veach-bidir", "scene.xml")),
                     reason="the shared scenes are not here")
 def test_check_on_a_scene_without_res(tmp_path, ref_cache, capsys):
