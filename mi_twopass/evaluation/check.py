@@ -164,6 +164,13 @@ def refusal_of(exc):
     return None
 
 
+def path_row(rows):
+    """The first row of Mitsuba's ``path`` that rendered (the noise alone at that spp), or
+    None."""
+    return next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
+                None)
+
+
 def mark_noise_limited(rows) -> None:
     """Mark OUT rows ``noise_limited``, each by what it has measured. A row of two renders
     (:func:`check_integrator`, ``renders=2``) by its own standard errors: where its mean ratio
@@ -171,8 +178,7 @@ def mark_noise_limited(rows) -> None:
     (:func:`within_noise`). A row of one render by ``path``'s (Mitsuba's unbiased estimator
     at the same spp: the noise alone): where ``path``'s row is OUT too; where there is no
     ``path`` row or it is in bounds, no row of one render is marked."""
-    path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
-                None)
+    path = path_row(rows)
     for r in rows:
         if r.bias2 is not None:
             r.noise_limited = bool(r.out and within_noise(r))
@@ -207,8 +213,7 @@ def spp_to_see_bias(rows, spp: int, ref_spp: int, renders: int = 1) -> int | Non
     too: raising ``spp`` alone does not bring path in); c and a are read off path's row, and
     (1/s + 1/r) = (1 + 1/REF_SPP_FACTOR)/s solved for s. With ``renders`` = 2 the row's image
     is the mean of two renders: 1/(2s) in place of 1/s where c and a are read off."""
-    path = next((r for r in rows if r.refused is None and r.integrator.split(":")[0] == "path"),
-                None)
+    path = path_row(rows)
     if path is None or not path.out:
         return None
     noise = 1.0 / (renders * spp) + 1.0 / ref_spp
