@@ -136,8 +136,29 @@ def machine_info() -> dict:
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     threads = dr.thread_count() if hasattr(dr, "thread_count") else None
     return {"cpu": cpu, "cores": os.cpu_count(), "usable_cores": usable,
-            "drjit_threads": threads, "os": platform.platform(),
+            "drjit_threads": threads, "gpu": gpu_name(), "os": platform.platform(),
             "python": platform.python_version()}
+
+
+def gpu_name() -> str | None:
+    """The NVIDIA GPU the ``cuda_*`` variants render on (``nvidia-smi``), None when the variant
+    is not a CUDA one or no GPU answers."""
+    import mitsuba as mi
+
+    if not mi.variant() or not mi.variant().startswith("cuda"):
+        return None
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                             capture_output=True, text=True, timeout=20).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.splitlines()[0].strip() if out else None
+
+
+def machine_label(m: dict) -> str:
+    """``AMD EPYC (2 cores)``, or ``NVIDIA H200, host AMD EPYC (16 cores)`` on a GPU."""
+    host = f"{m['cpu']} ({m['usable_cores']} cores)"
+    return f"{m['gpu']}, host {host}" if m.get("gpu") else host
 
 
 def software_info() -> dict:
@@ -156,6 +177,8 @@ def software_info() -> dict:
             commit += "+dirty"
     except (OSError, subprocess.SubprocessError):
         pass
+    # a copy of the working tree without .git (a GPU machine's) names its commit this way
+    commit = commit or os.environ.get("MI_TWOPASS_GIT_COMMIT") or None
     return {"variant": mi.variant(), "mitsuba": mi.__version__, "drjit": dr.__version__,
             "git_commit": commit}
 
@@ -481,7 +504,7 @@ def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_
     log(f"bench: {len(scenes)} scenes × {len(specs)} integrators, budget {budget:g} s each, "
         f"res {res}, references {ref_spp} spp; at most about "
         f"{_duration(estimate_seconds(len(scenes), len(specs), budget, references=False))} "
-        f"+ uncached references, on {m['cpu']} ({m['usable_cores']} cores)")
+        f"+ uncached references, on {machine_label(m)}")
     counter = [0, len(scenes) * len(specs)]
     t0 = time.perf_counter()
     entries = {}
@@ -491,24 +514,36 @@ def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_
             logfile.flush()
 
         detail(info["command"])
-        for path, name in zip(scenes, names):
+        for i, (path, name) in enumerate(zip(scenes, names)):
             detail(f"{name}: {path}")
             entries[name] = bench_scene(path, name, specs, budget, res, params, ref_spp, seed,
                                         out_dir, counter, log=log, detail=detail)
-    info["wall_seconds"] = time.perf_counter() - t0
+            # rewritten after every scene: a run stopped early leaves the table of what it did
+            write_report(out_dir, info, entries, time.perf_counter() - t0, len(scenes))
+    log(f"wrote {out_dir}/results.md, bench.json, bench.log and per scene <scene>.json, "
+        f"<scene>.png, <scene>_images.png ({_duration(info['wall_seconds'])})")
+    return info
+
+
+def write_report(out_dir: str, info: dict, entries: dict, wall_seconds: float,
+                 n_scenes: int):
+    """Write ``bench.json`` and ``results.md`` for the scenes in ``entries`` (``info`` gains
+    ``wall_seconds``, ``scenes`` and ``complete``); while fewer than ``n_scenes`` are done the
+    table's first line says it is partial."""
+    done = len(entries) >= n_scenes
+    info["wall_seconds"] = wall_seconds
     info["scenes"] = entries
+    info["complete"] = done
     with open(os.path.join(out_dir, "bench.json"), "w") as f:
         json.dump(info, f, indent=1, default=_json_default)
-    header = (f"Bench of {info['date']} on {m['cpu']} ({m['usable_cores']} cores), "
+    state = "took" if done else f"partial: {len(entries)} of {n_scenes} scenes in"
+    header = (f"Bench of {info['date']} on {machine_label(info['machine'])}, "
               f"{info['variant']}, Mitsuba {info['mitsuba']}, commit {info['git_commit']}; "
-              f"took {_duration(info['wall_seconds'])}. Command: `{info['command']}`")
+              f"{state} {_duration(wall_seconds)}. Command: `{info['command']}`")
     rows = [r for e in entries.values() for r in e["rows"]]
     with open(os.path.join(out_dir, "results.md"), "w") as f:
         f.write(format_results(rows, header, {
             e["label"]: (e["reference_relmse"], e["ref_spp"]) for e in entries.values()}))
-    log(f"wrote {out_dir}/results.md, bench.json, bench.log and per scene <scene>.json, "
-        f"<scene>.png, <scene>_images.png ({_duration(info['wall_seconds'])})")
-    return info
 
 
 def _duration(seconds: float) -> str:
