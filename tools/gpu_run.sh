@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The GPU report of issue 15 in one command, for a machine with an NVIDIA GPU and no network:
-# every integrator on cuda_ad_rgb (tools/gpu_check.py, with tracebacks), then the bench on
-# cuda_ad_rgb over the corpus and the scenes given, each step under its own time limit.
+# every integrator on cuda_ad_rgb (tools/gpu_check.py, with tracebacks), the bench on cuda_ad_rgb
+# over the corpus and the scenes given, and optionally the resolution sweep; each step under its
+# own time limit, and each writes its table as it goes, so a step cut short still reports.
 #
 #   bash tools/gpu_run.sh [SCENE.xml ...]
 #
@@ -9,10 +10,14 @@
 # 3.9.1 with its cuda_ad_rgb module, drjit 1.5.0, OpenEXR, flip-evaluator; the rest is assumed
 # installed: numpy, matplotlib, tqdm), unless they are importable already. Writes into $OUT
 # (default out/gpu): gpu.txt, check.log, bench.log, bench_data.tgz (results.md, bench.json,
-# per-scene JSON and plots) and the image strips in two tars (a file may be at most 16 MiB).
-# Environment: CHECK_TIMEOUT (s, default 120), BENCH_TIMEOUT (s, default 330), BUDGET (s per
-# integrator and scene, default 2), RES (default 256), REF_SPP (default 2048),
-# VARIANT (default cuda_ad_rgb), MI_TWOPASS_GIT_COMMIT (the commit, where the copy has no .git).
+# per-scene JSON and plots), the image strips in two tars (a file may be at most 16 MiB), and
+# with a sweep sweep.log and sweep.tgz.
+# Environment: CHECK (1: run the check, default), CHECK_TIMEOUT (s, default 120), CORPUS (1:
+# bench every scenes_xml scene before those given, default), BENCH_TIMEOUT (s, default 330),
+# BUDGET (s per integrator and scene, default 2), RES (default 256), REF_SPP (default 2048),
+# SWEEP_SIZES (e.g. 256,512: run `bench --sweep` on its default scenes; default none),
+# SWEEP_BUDGET and SWEEP_REF_SPP (given at 128², default 1 and 8192), SWEEP_TIMEOUT (s, default
+# 270), VARIANT (default cuda_ad_rgb), MI_TWOPASS_GIT_COMMIT (the commit the copy holds).
 set -u
 cd "$(dirname "$0")/.."
 OUT=${OUT:-out/gpu}
@@ -28,13 +33,19 @@ export MI_TWOPASS_VARIANT=${VARIANT:-cuda_ad_rgb} MI_TWOPASS_CACHE=${MI_TWOPASS_
 export PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv | tee "$OUT/gpu.txt"
 
-timeout "${CHECK_TIMEOUT:-120}" python3 tools/gpu_check.py scenes_xml/cornell_box.xml \
-    scenes_xml/caustic.xml scenes_xml/many_lights.xml --res 128 --spp 16 2>&1 \
-    | tee "$OUT/check.log"
+if [ "${CHECK:-1}" = 1 ]; then
+    timeout "${CHECK_TIMEOUT:-120}" python3 tools/gpu_check.py scenes_xml/cornell_box.xml \
+        scenes_xml/caustic.xml scenes_xml/many_lights.xml --res 128 --spp 16 2>&1 \
+        | tee "$OUT/check.log"
+fi
 
-scenes=(scenes_xml/many_lights.xml scenes_xml/caustic.xml scenes_xml/window_interior.xml
-        scenes_xml/office.xml scenes_xml/cornell_box.xml scenes_xml/furnace.xml
-        scenes_xml/mixed_room.xml "$@")
+scenes=()
+if [ "${CORPUS:-1}" = 1 ]; then
+    scenes=(scenes_xml/many_lights.xml scenes_xml/caustic.xml scenes_xml/window_interior.xml
+            scenes_xml/office.xml scenes_xml/cornell_box.xml scenes_xml/furnace.xml
+            scenes_xml/mixed_room.xml)
+fi
+scenes+=("$@")
 BENCH=/tmp/gpubench
 rm -rf "$BENCH"
 timeout "${BENCH_TIMEOUT:-330}" python3 -m mi_twopass bench --variant "$MI_TWOPASS_VARIANT" \
@@ -47,5 +58,13 @@ n=$(wc -l < /tmp/strips.txt)
 if [ "$n" -gt 0 ]; then
     head -n $(((n + 1) / 2)) /tmp/strips.txt | tar cf "$OUT/images_1.tar" -C "$BENCH" -T -
     tail -n +$(((n + 1) / 2 + 1)) /tmp/strips.txt | tar cf "$OUT/images_2.tar" -C "$BENCH" -T -
+fi
+if [ -n "${SWEEP_SIZES:-}" ]; then
+    SWEEP=/tmp/gpusweep
+    rm -rf "$SWEEP"
+    timeout "${SWEEP_TIMEOUT:-270}" python3 -m mi_twopass bench --variant "$MI_TWOPASS_VARIANT" \
+        --sweep "$SWEEP_SIZES" --budget "${SWEEP_BUDGET:-1}" --ref-spp "${SWEEP_REF_SPP:-8192}" \
+        -o "$SWEEP" 2>&1 | tee "$OUT/sweep.log"
+    tar czf "$OUT/sweep.tgz" -C "$SWEEP" .
 fi
 ls -la "$OUT"

@@ -177,8 +177,8 @@ def software_info() -> dict:
             commit += "+dirty"
     except (OSError, subprocess.SubprocessError):
         pass
-    # a copy of the working tree without .git (a GPU machine's) names its commit this way
-    commit = commit or os.environ.get("MI_TWOPASS_GIT_COMMIT") or None
+    # a copy of the working tree whose .git is not the code's (a GPU machine's) names it so
+    commit = os.environ.get("MI_TWOPASS_GIT_COMMIT") or commit
     return {"variant": mi.variant(), "mitsuba": mi.__version__, "drjit": dr.__version__,
             "git_commit": commit}
 

@@ -62,7 +62,7 @@ from dataclasses import asdict
 from . import harness
 from .runs import markdown_report, num, run_integrators, table_line
 from .bench import (CORPUS_DIR, OVERHEAD_SECONDS, REFERENCE_SECONDS_PER_SCENE, _duration,
-                    _json_default, command_line, machine_info, scene_names,
+                    _json_default, command_line, machine_info, machine_label, scene_names,
                     scene_settings, software_info, table_row as bench_row)
 
 #: the sweep's scenes and, per scene (file stem), the suite's integrator made for it
@@ -436,6 +436,35 @@ def sweep_point(scene_path, name: str, res: int, specs, budget: float, ref_spp: 
             "curves": {k: asdict(c) for k, c in curves.items()}}
 
 
+def write_report(out_dir: str, info: dict, points, names, wall_seconds: float,
+                 done: bool = True) -> None:
+    """Write ``sweep.json``, ``sweep.md`` and ``sweep.png`` for the points so far (``info``
+    gains ``wall_seconds``, ``points``, ``rows`` and ``complete``); a run not ``done`` says
+    in the table's first line that it is partial."""
+    info["wall_seconds"] = wall_seconds
+    info["points"] = points
+    info["complete"] = done
+    rows = sorted((r for p in points for r in p["rows"]),
+                  key=lambda r: (names.index(r["scene"]), r["pixels"]))
+    info["rows"] = rows
+    with open(os.path.join(out_dir, "sweep.json"), "w") as f:
+        json.dump(info, f, indent=1, default=_json_default)
+    budget, ref_spp = info["budget_at_128"], info["ref_spp_at_128"]
+    sizes_done = sorted({p["res"] for p in points})
+    state = (f"took {_duration(wall_seconds)}" if done else
+             f"partial: sizes {','.join(map(str, sizes_done))} of "
+             f"{','.join(map(str, info['sizes']))} in {_duration(wall_seconds)}")
+    header = (f"Resolution sweep of {info['date']} on {machine_label(info['machine'])}, "
+              f"{info['variant']}, Mitsuba {info['mitsuba']}, commit {info['git_commit']}; "
+              f"budget {budget:g} s and reference {ref_spp} spp at {BASE_RES}², scaled by "
+              f"side / {BASE_RES}; {state}. Command: `{info['command']}`")
+    with open(os.path.join(out_dir, "sweep.md"), "w") as f:
+        f.write(format_table(rows, header))
+    write_figure(rows, os.path.join(out_dir, "sweep.png"),
+                 title=f"speed-up to relMSE {TARGET} over path; budget {budget:g} s × side / "
+                       f"{BASE_RES}, reference {ref_spp} spp × {BASE_RES} / side")
+
+
 def run_sweep(scenes, sizes, specs=None, budget: float = DEFAULT_BUDGET,
               ref_spp: int = DEFAULT_REF_SPP, params: dict | None = None, seed: int = 0,
               out_dir: str = "benchmarks", argv=(), log=print) -> dict:
@@ -465,8 +494,7 @@ def run_sweep(scenes, sizes, specs=None, budget: float = DEFAULT_BUDGET,
     log(f"sweep: {len(scenes)} scenes × sizes {','.join(map(str, sizes))} × "
         f"{runs_per_size // max(1, len(scenes))} integrators; budget {budget:g} s and "
         f"reference {ref_spp} spp at {BASE_RES}² (scaled by side / {BASE_RES}); at most about "
-        f"{_duration(estimate)} with uncached references, on {m['cpu']} "
-        f"({m['usable_cores']} cores)")
+        f"{_duration(estimate)} with uncached references, on {machine_label(m)}")
     counter = [0, runs_per_size * len(sizes)]
     t0 = time.perf_counter()
     points = []
@@ -486,23 +514,9 @@ def run_sweep(scenes, sizes, specs=None, budget: float = DEFAULT_BUDGET,
                     log(f"    reference {r} spp at {point['size'][0]}×{point['size'][1]}: "
                         f"floor relMSE ≈ {point['ref_floor']:.1e}")
                 points.append(point)
-    info["wall_seconds"] = time.perf_counter() - t0
-    info["points"] = points
-    rows = sorted((r for p in points for r in p["rows"]),
-                  key=lambda r: (names.index(r["scene"]), r["pixels"]))
-    info["rows"] = rows
-    with open(os.path.join(out_dir, "sweep.json"), "w") as f:
-        json.dump(info, f, indent=1, default=_json_default)
-    header = (f"Resolution sweep of {info['date']} on {m['cpu']} ({m['usable_cores']} cores), "
-              f"{info['variant']}, Mitsuba {info['mitsuba']}, commit {info['git_commit']}; "
-              f"budget {budget:g} s and reference {ref_spp} spp at {BASE_RES}², scaled by "
-              f"side / {BASE_RES}; took {_duration(info['wall_seconds'])}. "
-              f"Command: `{info['command']}`")
-    with open(os.path.join(out_dir, "sweep.md"), "w") as f:
-        f.write(format_table(rows, header))
-    write_figure(rows, os.path.join(out_dir, "sweep.png"),
-                 title=f"speed-up to relMSE {TARGET} over path; budget {budget:g} s × side / "
-                       f"{BASE_RES}, reference {ref_spp} spp × {BASE_RES} / side")
+            # rewritten after every size: a run stopped early leaves the sizes it did
+            write_report(out_dir, info, points, names, time.perf_counter() - t0,
+                         done=res == sizes[-1])
     log(f"wrote {out_dir}/sweep.md, sweep.png, sweep.json, sweep.log "
         f"({_duration(info['wall_seconds'])})")
     return info
