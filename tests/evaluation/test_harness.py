@@ -42,6 +42,19 @@ def test_equal_time_ratio_and_speedup():
     assert "4.00" in table and "path" in table
 
 
+def test_a_held_up_point_of_path_does_not_bend_the_equal_time_ratios():
+    # path's 4-spp point held up (0.54 s between 0.011 s and 0.017 s, as on an H200): read
+    # off the curve as measured, path's own ratio was 92 and x's came out of that segment
+    spp_t = [0.009, 0.011, 0.54, 0.017, 0.025, 0.5]
+    path = curve("path", spp_t, [1.4, 0.72, 0.34, 0.17, 0.09, 0.0037])
+    x = curve("x", [0.5], [0.0037 / 2])
+    curves = {"path": path, "x": x}
+    harness.summarise(curves)
+    assert harness.envelope_seconds(path.points) == [0.009, 0.011, 0.017, 0.017, 0.025, 0.5]
+    assert curves["path"].summary["equal_time_ratio"] == pytest.approx(1.0)
+    assert curves["x"].summary["equal_time_ratio"] == pytest.approx(2.0)
+
+
 def test_warm_up_builds_what_a_long_twopass_render_builds():
     """At 1 spp twopass renders path with no pilot; its warm-up plans for a long render, so
     the pilot and the structures it builds are compiled before the timed points (128² px:
