@@ -11,6 +11,18 @@ from mi_twopass.evaluation import bench
 from mi_twopass.evaluation.harness import Point
 
 
+def _load_tool(name):
+    """A script of tools/ as a module."""
+    import importlib.util
+    import os
+
+    path = os.path.join(os.path.dirname(__file__), "..", "..", "tools", f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _table(text):
     """results.md's table as (header cells, [row cells])."""
     lines = [ln for ln in text.splitlines() if ln.startswith("| ")]
@@ -58,6 +70,23 @@ def test_bench_writes_table_plots_images_and_json(tiny_scene_file, tmp_path, ref
     assert data["date"] and data["command"].startswith("python -m mi_twopass bench ")
     assert data["variant"] == "llvm_ad_rgb" and data["mitsuba"] and data["drjit"]
     assert data["budget"] == 1.0 and data["ref_spp"] == 64
+    assert data["complete"] is True and m["gpu"] is None  # llvm: no GPU named
+    assert "took" in first and "partial" not in first
+
+    # tools/bench_retable.py: the same rows from bench.json, summarised again
+    retable = _load_tool("bench_retable")
+    again = tmp_path / "again.md"
+    retable.main([str(out / "bench.json"), "-o", str(again)])
+    header2, rows2 = _table(again.read_text())
+    assert header2 == header and [r[:2] for r in rows2] == [r[:2] for r in rows]
+    assert data["git_commit"] is None or data["git_commit"] in again.read_text()
+
+    # a run stopped after its first of two scenes leaves a table that says it is partial
+    part = tmp_path / "part"
+    part.mkdir()
+    bench.write_report(str(part), dict(data), dict(data["scenes"]), 12.0, n_scenes=2)
+    assert "partial: 1 of 2 scenes" in (part / "results.md").read_text().splitlines()[0]
+    assert json.loads((part / "bench.json").read_text())["complete"] is False
     assert list(data["scenes"]) == ["tiny"]  # scenes given: the corpus is not added
     scene = data["scenes"]["tiny"]
     assert scene["params"] == {"res": 16} and scene["size"] == [16, 16]

@@ -54,6 +54,16 @@ def test_sweep_writes_table_figure_and_json(tiny_scene_file, tmp_path, ref_cache
         assert set(p["curves"]) == {"path", spec}
         assert all(pt["relmse"] > 0 for c in p["curves"].values() for pt in c["points"])
     assert len(data["rows"]) == 4 and data["machine"]["cpu"] and data["variant"]
+    assert data["complete"] is True
+    assert "took" in (out / "sweep.md").read_text().splitlines()[0]
+
+    # a sweep stopped after its first size leaves that size's table, marked partial
+    part = tmp_path / "part"
+    part.mkdir()
+    sweep.write_report(str(part), dict(data), data["points"][:1], ["tiny"], 3.0, done=False)
+    first = (part / "sweep.md").read_text().splitlines()[0]
+    assert "partial: sizes 8 of 8,16" in first
+    assert len(_table((part / "sweep.md").read_text())) == 2
 
     image = matplotlib.image.imread(str(out / "sweep.png"))
     assert image.shape[1] > image.shape[0]  # the plot and its legend beside it
