@@ -430,6 +430,16 @@ def test_rex_build_follows_the_split_rule_record_by_record():
     assert np.all(held[~leaf] > limit[~leaf])
     flux = rexes.flux_indirect[leaf].sum(axis=0)
     assert np.allclose(flux, records["flux"].astype(np.float64).sum(axis=0), rtol=1e-6)
+    # each leaf's deposit is the flux of the records inside it (depth 1: all indirect)
+    brute = inside[leaf].astype(np.float64) @ records["flux"].astype(np.float64)
+    assert np.allclose(rexes.flux_indirect[leaf], brute, rtol=1e-6, atol=1e-9)
+    assert not rexes.flux_direct.any()
+    # the light pass leaves the records in a random order: the rexes are the same bit for bit
+    perm = rng.permutation(n)
+    again = build_rex_tree(tables, {k: a[perm] for k, a in records.items()}, cap, settings)
+    for name in ("node_rex", "level", "ix", "iy", "child", "count", "flux_direct",
+                 "flux_indirect"):
+        assert np.array_equal(getattr(again, name), getattr(rexes, name)), name
 
 
 def test_automatic_photon_budget_follows_the_image():
