@@ -577,7 +577,7 @@ class CacheSettings:
     alpha: float | None = None
     fake_gi: bool = False
     ambient: float = 0.1
-    radiosity: RadiositySettings = RadiositySettings(max_patches=2048, elements_per_patch=1)
+    radiosity: RadiositySettings = RadiositySettings(max_patches=2048, elements_per_patch=4)
     max_points: int = 4096
     max_clusters: int = 1024
     rays_per_cluster: int = 128
