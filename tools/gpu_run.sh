@@ -8,7 +8,10 @@
 #
 # Needs, in the repository root: .whl/ with Python wheels for the GPU machine's Python (mitsuba
 # 3.9.1 with its cuda_ad_rgb module, drjit 1.5.0, OpenEXR, flip-evaluator; the rest is assumed
-# installed: numpy, matplotlib, tqdm), unless they are importable already. Writes into $OUT
+# installed: numpy, matplotlib, tqdm), unless they are importable already:
+# `python tools/gpu_wheels.py` fetches and repacks them (38.6 MB). Scenes outside the checkout
+# (../shared/scenes) must be copied into it, e.g. into .gpu_scenes/; list .whl and .gpu_scenes
+# in .git/info/exclude and in the device call's carry. Writes into $OUT
 # (default out/gpu): gpu.txt, check.log, bench.log, bench_data.tgz (results.md, bench.json,
 # per-scene JSON and plots), the image strips in two tars (a file may be at most 16 MiB), and
 # with a sweep sweep.log and sweep.tgz.
