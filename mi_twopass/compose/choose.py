@@ -277,6 +277,14 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             decision.skipped[c.name] = why  # probe shoot (1.3 s on many_lights at 256²)
             continue
         spent = time.perf_counter() - t_start
+        if measured and spent + cost.PREPASS_LEAST_SECONDS > budget:
+            # no prepass fits: said before rex's photon need is measured (a size pass and a
+            # probe shoot), as the floor below would say after it
+            decision.skipped[c.name] = (
+                f"budget: {spent:.3g} s spent + a prepass of at least "
+                f"{cost.PREPASS_LEAST_SECONDS:.3g} s > {budget:.3g} s ({share:.3g} x path's "
+                f"predicted {path_seconds:.3g} s)")
+            continue
         integ = candidate(c)
         least, need = cost.light_paths(integ, scene, sensor)
         least = max(least, cost.least_cut(need))

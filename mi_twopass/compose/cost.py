@@ -36,7 +36,8 @@ measured so far by :data:`MIN_GAIN` is not built; nor is any once the pilot and 
 built so far have spent :data:`PILOT_BUDGET` of the time ``path`` is predicted to take for the
 render (a prepass cannot pay in a render shorter than itself; at most one prepass overshoots,
 as none is stopped once started, so one whose predicted floor, :data:`PREPASS_FLOOR_FACTOR` path
-samples per light path it traces, would pass the budget is not started); nor one the scene gives
+samples per light path it traces and at least :data:`PREPASS_LEAST_SECONDS`, would pass the
+budget is not started); nor one the scene gives
 nothing to (one
 emitter for spike lists, no Lambertian surface for the far fields and rexes, a finite
 ``max_depth`` for the far fields, which hold every path length).
@@ -97,6 +98,14 @@ PILOT_SHARE_MAX = 0.15
 #: traces (radiosity particles, rex photons); measured on the corpus at 128²: 2.4 (office,
 #: window_interior) to 38 (furnace), docs/design.md "twopass"
 PREPASS_FLOOR_FACTOR = 2.0
+#: ... and at least this many seconds, whatever the device: a prepass's host work (patches,
+#: Python, numpy, many small kernels) does not get faster with it. The least prepass measured
+#: took 0.20 s on two CPU cores (radiosity_gather, Cornell box at 64², ``bench --prepass
+#: --quick``) and 0.19 s on an H200 (the same at 256², docs/results/gpu-2026-11-27), where
+#: the floor in path samples' time predicted about 0.002 s and twopass built 1.4 s of spike
+#: lists and radiosity for a 0.07 s render; three quarters of the least, as a floor must not
+#: pass what it bounds
+PREPASS_LEAST_SECONDS = 0.15
 
 #: rexes are cut to at most CUT_MAX times fewer photons than the image needs: their buckets,
 #: which stop splitting at the pixel footprint with the image's need, then stop at most
@@ -291,15 +300,20 @@ def least_light_paths(integ) -> int:
 
 
 def light_paths_within(seconds: float, path: Measured, film_pixels: int) -> int:
-    """The light paths whose :func:`prepass_floor` is ``seconds``."""
+    """The most light paths whose :func:`prepass_floor` is ``seconds`` (none below
+    :data:`PREPASS_LEAST_SECONDS`)."""
     per_path = PREPASS_FLOOR_FACTOR * path.seconds_per_spp / max(film_pixels, 1)
-    return int(seconds / per_path) if per_path > 0 else 0
+    if per_path <= 0 or seconds < PREPASS_LEAST_SECONDS:
+        return 0
+    return int(seconds / per_path)
 
 
 def prepass_floor(light_path_count: int, path: Measured, film_pixels: int) -> float:
     """The least a prepass tracing ``light_path_count`` light paths is predicted to cost:
-    :data:`PREPASS_FLOOR_FACTOR` × that many path samples at the path pilot's cost."""
-    return PREPASS_FLOOR_FACTOR * light_path_count * path.seconds_per_spp / max(film_pixels, 1)
+    :data:`PREPASS_FLOOR_FACTOR` × that many path samples at the path pilot's cost, and at
+    least :data:`PREPASS_LEAST_SECONDS`."""
+    return max(PREPASS_LEAST_SECONDS, PREPASS_FLOOR_FACTOR * light_path_count
+               * path.seconds_per_spp / max(film_pixels, 1))
 
 
 def largest_budget(pilot_share: float) -> float:

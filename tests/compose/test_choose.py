@@ -146,3 +146,23 @@ def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypa
     assert decision.fitted[rex_row.name] == (need, need)
     assert [k for k, _ in decision.frozen[rex_row.name]] == [cut, need]
     assert predicted.block < decision.frozen[rex_row.name][0][1].block
+
+
+def test_no_prepass_is_measured_or_built_where_not_even_the_least_one_fits(monkeypatch):
+    # where the pilot leaves less than PREPASS_LEAST_SECONDS of the budget, a candidate is
+    # skipped before its prepass's size is measured (rex's: a size pass and a probe shoot)
+    scene = mi.load_dict(hs.box())
+    tp = chooser()
+    rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
+    monkeypatch.setattr(cost, "CAUSTIC_SHARE", 0.0)  # the box has no caustics to speak of
+    monkeypatch.setattr(cost, "PREPASS_LEAST_SECONDS", float("inf"))
+
+    def never(*args, **kwargs):
+        raise AssertionError("rex's photon need was measured")
+
+    monkeypatch.setattr(cost, "light_paths", never)
+    choice = run_choose(scene, tp, [cost.COMPOSITIONS[0], rex_row])
+    assert choice.decision.skipped[rex_row.name].startswith("budget: ")
+    assert "a prepass of at least inf s" in choice.decision.skipped[rex_row.name]
+    assert choice.decision.chosen == cost.COMPOSITIONS[0]
+    assert set(choice.decision.measured) == {cost.COMPOSITIONS[0].name}

@@ -99,6 +99,21 @@ def test_prepass_floor_counts_light_paths_at_path_cost():
     # 1e6 light paths on a 100×100 film: 100 path samples per pixel's worth of paths
     assert cost.prepass_floor(10**6, path, 10**4) == pytest.approx(
         cost.PREPASS_FLOOR_FACTOR * 100 * 0.02)
+    assert cost.light_paths_within(cost.PREPASS_FLOOR_FACTOR * 100 * 0.02, path, 10**4) == \
+        pytest.approx(10**6, rel=1e-9, abs=1)
+
+
+def test_a_prepass_costs_its_host_work_however_fast_the_device_traces():
+    # a GPU: path at 256² costs 0.4 ms per spp, so 262,144 particles' floor in path samples'
+    # time would be 3 ms; every prepass measured took at least 0.19 s there
+    gpu_path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=4e-4, variance=1.0,
+                             bias2=0.0, mean_ratio=1.0)
+    film = 256 * 256
+    assert cost.PREPASS_FLOOR_FACTOR * 262_144 * 4e-4 / film < 0.01
+    assert cost.prepass_floor(262_144, gpu_path, film) == cost.PREPASS_LEAST_SECONDS
+    # below the least, no light paths fit; at it, as many as the floor in samples allows
+    assert cost.light_paths_within(0.9 * cost.PREPASS_LEAST_SECONDS, gpu_path, film) == 0
+    assert cost.light_paths_within(cost.PREPASS_LEAST_SECONDS, gpu_path, film) > 262_144
 
 
 def test_prepass_budget_follows_the_best_case_break_even_within_its_bounds():
