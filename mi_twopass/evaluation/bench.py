@@ -161,6 +161,14 @@ def machine_label(m: dict) -> str:
     return f"{m['gpu']}, host {host}" if m.get("gpu") else host
 
 
+def run_label(info: dict) -> str:
+    """When, where and with what a report was made, for the first line of its table:
+    ``<date> on <machine_label>, <variant>, Mitsuba <version>, Dr.Jit <version>, commit <sha>``
+    (``info``: :func:`machine_info` as ``machine``, the date, and :func:`software_info`)."""
+    return (f"{info['date']} on {machine_label(info['machine'])}, {info['variant']}, "
+            f"Mitsuba {info['mitsuba']}, Dr.Jit {info['drjit']}, commit {info['git_commit']}")
+
+
 def software_info() -> dict:
     """Variant, Mitsuba and Dr.Jit versions, and the git commit of this checkout (``+dirty``
     when it has uncommitted changes; None outside git)."""
@@ -537,9 +545,8 @@ def write_report(out_dir: str, info: dict, entries: dict, wall_seconds: float,
     with open(os.path.join(out_dir, "bench.json"), "w") as f:
         json.dump(info, f, indent=1, default=_json_default)
     state = "took" if done else f"partial: {len(entries)} of {n_scenes} scenes in"
-    header = (f"Bench of {info['date']} on {machine_label(info['machine'])}, "
-              f"{info['variant']}, Mitsuba {info['mitsuba']}, commit {info['git_commit']}; "
-              f"{state} {_duration(wall_seconds)}. Command: `{info['command']}`")
+    header = (f"Bench of {run_label(info)}; {state} {_duration(wall_seconds)}. "
+              f"Command: `{info['command']}`")
     rows = [r for e in entries.values() for r in e["rows"]]
     with open(os.path.join(out_dir, "results.md"), "w") as f:
         f.write(format_results(rows, header, {

@@ -253,7 +253,7 @@ def run_cold(scene_path, specs, res: int = DEFAULT_RES, spp: int = DEFAULT_SPP,
     """Measure every integrator of ``specs`` (module docstring), write ``cold.json`` and
     ``cold.md`` into ``out_dir``, and return cold.json's content. An integrator whose child
     fails gets a row saying so and the run goes on."""
-    from .bench import command_line, machine_info, software_info
+    from .bench import command_line, machine_info, machine_label, run_label, software_info
 
     os.makedirs(out_dir, exist_ok=True)
     started = datetime.datetime.now().astimezone()
@@ -265,8 +265,7 @@ def run_cold(scene_path, specs, res: int = DEFAULT_RES, spp: int = DEFAULT_SPP,
     m = info["machine"]
     log(f"cold start: {len(specs)} integrators on {os.path.basename(scene_path)}, res {res}, "
         f"{spp} spp; {1 + warm_runs} fresh processes each, about "
-        f"{estimate_seconds(len(specs), warm_runs):.0f} s, on {m['cpu']} "
-        f"({m['usable_cores']} cores)")
+        f"{estimate_seconds(len(specs), warm_runs):.0f} s, on {machine_label(m)}")
     t0 = time.perf_counter()
     runs, rows = {}, []
     for k, spec in enumerate(specs, start=1):
@@ -293,9 +292,8 @@ def run_cold(scene_path, specs, res: int = DEFAULT_RES, spp: int = DEFAULT_SPP,
         json.dump(info, f, indent=1, default=str)
     sizes = [r["cold"]["size"] for r in runs.values() if "cold" in r]
     film = f"{sizes[0][0]}×{sizes[0][1]}" if sizes else f"res {res}"
-    header = (f"Cold start of {info['date']} on {m['cpu']} ({m['usable_cores']} cores), "
-              f"{info['variant']}, Mitsuba {info['mitsuba']}, Dr.Jit {info['drjit']}, commit "
-              f"{info['git_commit']}: {os.path.basename(scene_path)} at {film}, {spp} spp; "
+    header = (f"Cold start of {run_label(info)}: {os.path.basename(scene_path)} at {film}, "
+              f"{spp} spp; "
               f"took {info['wall_seconds']:.0f} s. Command: `{info['command']}`")
     with open(os.path.join(out_dir, "cold.md"), "w") as f:
         f.write(format_table(rows, header))

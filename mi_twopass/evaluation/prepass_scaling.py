@@ -822,7 +822,8 @@ def run_prepass_scaling(scene_path=DEFAULT_SCENE, specs=None, sizes=DEFAULT_SIZE
     """Measure (module docstring), write prepass_scaling.json / .md / .png into ``out_dir``
     and return the JSON's content. ``specs``: integrator specs (default :func:`suite_specs`;
     ``path`` is added first when missing: the reference line)."""
-    from .bench import _duration, command_line, machine_info, software_info
+    from .bench import (_duration, command_line, machine_info, machine_label, run_label,
+                        software_info)
 
     specs = list(specs or suite_specs())
     if not any(is_path(s) for s in specs):
@@ -846,7 +847,7 @@ def run_prepass_scaling(scene_path=DEFAULT_SCENE, specs=None, sizes=DEFAULT_SIZE
                              study_res)
         log(f"prepass scaling: {len(points)} points × ({len(specs)} integrators + a baseline) "
             f"= {len(points) * (len(specs) + 1)} processes, timeout {timeout:g} s each; about "
-            f"{_duration(estimate)} on {m['cpu']} ({m['usable_cores']} cores)")
+            f"{_duration(estimate)} on {machine_label(m)}")
         t0 = time.perf_counter()
         entries = measure(points, specs, timeout, seed, variant, log=log, runner=runner)
     finally:
@@ -854,13 +855,11 @@ def run_prepass_scaling(scene_path=DEFAULT_SCENE, specs=None, sizes=DEFAULT_SIZE
     info["wall_seconds"] = time.perf_counter() - t0
     info["estimated_seconds"] = estimate
     info["entries"] = entries
-    info["title"] = (f"prepass scaling, {info['date']}, {m['cpu']} ({m['usable_cores']} cores), "
+    info["title"] = (f"prepass scaling, {info['date']}, {machine_label(m)}, "
                      f"commit {info['git_commit']}")
     info["header"] = (
-        f"Prepass scaling of {info['date']} on {m['cpu']} ({m['usable_cores']} cores), "
-        f"{info['variant']}, Mitsuba {info['mitsuba']}, Dr.Jit {info['drjit']}, commit "
-        f"{info['git_commit']}; took {_duration(info['wall_seconds'])} (estimated "
-        f"{_duration(estimate)}). Command: `{info['command']}`")
+        f"Prepass scaling of {run_label(info)}; took {_duration(info['wall_seconds'])} "
+        f"(estimated {_duration(estimate)}). Command: `{info['command']}`")
     with open(os.path.join(out_dir, "prepass_scaling.json"), "w") as f:
         json.dump(info, f, indent=1, default=str)
     with open(os.path.join(out_dir, "prepass_scaling.md"), "w") as f:

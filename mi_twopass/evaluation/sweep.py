@@ -62,7 +62,8 @@ from dataclasses import asdict
 from . import harness
 from .runs import markdown_report, num, run_integrators, table_line
 from .bench import (CORPUS_DIR, OVERHEAD_SECONDS, REFERENCE_SECONDS_PER_SCENE, _duration,
-                    _json_default, command_line, machine_info, machine_label, scene_names,
+                    _json_default, command_line, machine_info, machine_label, run_label,
+                    scene_names,
                     scene_settings, software_info, table_row as bench_row)
 
 #: the sweep's scenes and, per scene (file stem), the suite's integrator made for it
@@ -454,8 +455,7 @@ def write_report(out_dir: str, info: dict, points, names, wall_seconds: float,
     state = (f"took {_duration(wall_seconds)}" if done else
              f"partial: sizes {','.join(map(str, sizes_done))} of "
              f"{','.join(map(str, info['sizes']))} in {_duration(wall_seconds)}")
-    header = (f"Resolution sweep of {info['date']} on {machine_label(info['machine'])}, "
-              f"{info['variant']}, Mitsuba {info['mitsuba']}, commit {info['git_commit']}; "
+    header = (f"Resolution sweep of {run_label(info)}; "
               f"budget {budget:g} s and reference {ref_spp} spp at {BASE_RES}², scaled by "
               f"side / {BASE_RES}; {state}. Command: `{info['command']}`")
     with open(os.path.join(out_dir, "sweep.md"), "w") as f:
