@@ -146,6 +146,13 @@ def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: fl
     return integ, predicted, time.perf_counter() - t0
 
 
+def _over_budget(spent: float, floor: float, budget: float, share: float,
+                 path_seconds: float) -> str:
+    """Why a candidate's prepass is not started: what was spent and its floor pass its budget."""
+    return (f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s > {budget:.3g} s "
+            f"({share:.3g} x path's predicted {path_seconds:.3g} s)")
+
+
 def path_sum_estimator(path_integ, parts_out=None):
     """The path pilot's estimator: the sum of the component path tracer's parts; each call's
     ``(direct, caustic, indirect)`` appended to ``parts_out`` where one is given."""
@@ -280,10 +287,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         if measured and spent + cost.PREPASS_LEAST_SECONDS > budget:
             # no prepass fits: said before rex's photon need is measured (a size pass and a
             # probe shoot), as the floor below would say after it
-            decision.skipped[c.name] = (
-                f"budget: {spent:.3g} s spent + a prepass of at least "
-                f"{cost.PREPASS_LEAST_SECONDS:.3g} s > {budget:.3g} s ({share:.3g} x path's "
-                f"predicted {path_seconds:.3g} s)")
+            decision.skipped[c.name] = _over_budget(spent, cost.PREPASS_LEAST_SECONDS, budget,
+                                                    share, path_seconds)
             continue
         integ = candidate(c)
         least, need = cost.light_paths(integ, scene, sensor)
@@ -305,9 +310,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
                 decision.fitted[c.name] = (fits, need)
                 floor = cost.prepass_floor(fits, path_m, film_pixels)
         if spent + floor > budget and measured:
-            decision.skipped[c.name] = (
-                f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s "
-                f"> {budget:.3g} s ({share:.3g} x path's predicted {path_seconds:.3g} s)")
+            decision.skipped[c.name] = _over_budget(spent, floor, budget, share, path_seconds)
             if least < need and c.name not in decision.fitted:
                 decision.skipped[c.name] += (
                     f"; cut to the fewest photons allowed, {least} (1/{cost.CUT_MAX} of the "
