@@ -522,7 +522,7 @@ def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_
             logfile.flush()
 
         detail(info["command"])
-        for i, (path, name) in enumerate(zip(scenes, names)):
+        for path, name in zip(scenes, names):
             detail(f"{name}: {path}")
             entries[name] = bench_scene(path, name, specs, budget, res, params, ref_spp, seed,
                                         out_dir, counter, log=log, detail=detail)
