@@ -178,7 +178,9 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          --renders 2``, image mean over path's, 1 → 4 elements: window_interior 0.9922 →
          0.9980 (16: 0.9985), mixed_room 0.9945 → 0.9996, office 0.9929 → 0.9941, Cornell
          box, tut-cbox and veach-bidir unchanged within ±0.001; the prepass at 256² costs
-         15–40 % more (window_interior 0.82 → 1.09 s, mixed_room 0.96 → 1.49 s).
+         25–35 % more (window_interior 0.82 → 1.10 s, mixed_room 0.84 → 1.05 s: ``bench
+         --prepass --quick --scene SCENE --sizes 256 --no-full-hd --integrators
+         radiance_cache:elements_per_patch=1,radiance_cache``).
      * - max_points
        - |int|
        - Shading points collected from the camera's view (default: 4096).

@@ -1335,8 +1335,8 @@ def quadtree_cells(rex, u, v, bits: int):
 
     Sorted, the records of every quadtree node at every level form one contiguous run (the
     node's key prefix), and the two bits at level l (counted from the root's children) are the
-    quadrant qx + 2·qy that :meth:`Rexes.descend` takes there. Computed by Dr.Jit: numpy took
-    0.35 s of a 1.0 s build for the Cornell box's 6.8 M records at 128², Dr.Jit about 0.01 s."""
+    quadrant qx + 2·qy that :meth:`Rexes.descend` takes there. Computed by Dr.Jit: millions of
+    records (6.8 M on the Cornell box at 128²) are a vectorised kernel's work, not numpy's."""
     n = 1 << bits
     qx = mi.UInt64(dr.clip(dr.floor(mi.Float64(mi.Float(u)) * n), 0, n - 1))
     qy = mi.UInt64(dr.clip(dr.floor(mi.Float64(mi.Float(v)) * n), 0, n - 1))
@@ -1371,10 +1371,12 @@ def sort_records(tables, records, cap, bits: int, max_level: int):
     record indices), their keys in that order and their size-pass caps (numpy uint64 and
     int16 arrays; :func:`quadtree_cells`, :func:`record_caps`).
 
-    The keys and caps are computed, sorted (Dr.Jit's radix sort: 0.15 s for the Cornell box's
-    6.8 M keys at 128², numpy's argsort 0.28 s) and gathered by Dr.Jit; the build went from
-    0.88 s to 0.5 s there, the same rexes bit for bit. Ties (equal keys) may come in any order:
-    nothing built from them depends on it."""
+    The keys and caps are computed, sorted (Dr.Jit's radix sort) and gathered by Dr.Jit, as is
+    the deposit (:func:`deposit`); with numpy the build took 1.68 and 1.76 s on the Cornell box
+    at 128², now 1.00 and 0.95 s, the same rexes bit for bit (``rex_build_seconds`` of
+    ``bench --prepass --quick --integrators rex``, two runs each,
+    docs/results/rex-build-2026-11-27). Ties (equal keys) may come in any order: nothing built
+    from them depends on it."""
     if len(records["rex"]) == 0:
         return mi.UInt32(), np.zeros(0, np.uint64), np.zeros(0, np.int16)
     rex = mi.UInt32(records["rex"])
