@@ -348,8 +348,15 @@ def _far(B_D, L_F, d):
 def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
                      cell_size=None) -> NearField:
     """Median-split BVH (longest centroid axis) over triangles ``verts`` (T, 3, 3) with one-sided
-    unit normals (T, 3) and radiosities ``tri_B`` (T, 3). Bookkeeping in numpy, vectorised over
-    all nodes of one tree level (about log2 T passes); zero-area triangles are dropped.
+    unit normals (T, 3) and radiosities ``tri_B`` (T, 3); zero-area triangles are dropped.
+
+    Numpy, vectorised over all nodes of one tree level, in two sweeps: top-down, the split (the
+    order of the triangles, each node a contiguous segment of it; about log2 T passes of one
+    stable sort each); bottom-up, the node aggregates from their two children (O(T) in all):
+    boxes, areas and the area-weighted sums are exact; a node's bounding radius (about its box
+    centre, over its vertices) and centroid radius (about its centroid box's centre) are the
+    smaller of the children's spheres grown to the node's centre and the box's half-diagonal —
+    upper bounds, exact at the leaves, so the walk's culling stays conservative.
 
     With shading ``points`` (n, 3) and ``alpha``, also the per-cell start lists of the walk
     (:class:`NodeCells`, cells of ``cell_size``, default ``alpha``/2)."""
@@ -372,52 +379,62 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
                          ccenter, cradius, half)
         near._tables  # the Dr.Jit copies, built now
         return near
-    # Level by level: ``perm`` orders the triangles so that every node is a contiguous segment
+    # Top-down: ``perm`` orders the triangles so that every node is a contiguous segment
     # [start, end) of it; a node of n triangles has 2n − 1 nodes in its subtree, so in pre-order
     # its left child is node + 1, its right child node + 2·n_left and its skip link node + 2n − 1.
     perm = np.arange(T)
-    # per-triangle terms gathered at every level: computed once
-    tri_lo, tri_hi = verts.min(axis=1), verts.max(axis=1)
-    wB, wN = tri_area[:, None] * tri_B, tri_area[:, None] * tri_normal
+    levels = []  # (node, n_left) of the inner nodes of each level
     start, end, node = np.array([0]), np.array([T]), np.array([0])
     while len(node):
         n_seg = end - start
-        seg = np.repeat(np.arange(len(node)), n_seg)  # segment of each position of perm
-        at = _ranges(start, end)
-        ids = perm[at]
-        # node aggregates (reduceat over the contiguous segments)
-        first = n_seg.cumsum() - n_seg
-        vp = verts[ids]  # (Σn, 3, 3)
-        lo = np.minimum.reduceat(tri_lo[ids], first, axis=0)
-        hi = np.maximum.reduceat(tri_hi[ids], first, axis=0)
-        c_n = 0.5 * (lo + hi)
-        d2 = ((vp - c_n[seg][:, None, :]) ** 2).sum(-1).max(axis=1)
-        center[node] = c_n
-        half[node] = 0.5 * (hi - lo)
-        radius[node] = np.sqrt(np.maximum.reduceat(d2, first))
-        cts = centroid[ids]
-        clo = np.minimum.reduceat(cts, first, axis=0)
-        chi = np.maximum.reduceat(cts, first, axis=0)
-        ccenter[node] = 0.5 * (clo + chi)
-        cradius[node] = np.sqrt(np.maximum.reduceat(((cts - ccenter[node][seg]) ** 2).sum(-1),
-                                                    first))
-        area[node] = np.add.reduceat(tri_area[ids], first)
-        B[node] = np.add.reduceat(wB[ids], first, axis=0) / area[node][:, None]
-        normal[node] = np.add.reduceat(wN[ids], first, axis=0) / area[node][:, None]
         skip[node] = node + 2 * n_seg - 1
         leaf = n_seg == 1
-        tri[node[leaf]] = ids[first[leaf]]
-        # split the inner nodes at the median along their longest centroid axis (stable sort)
-        axis = np.argmax(chi - clo, axis=1)
-        key = cts[np.arange(len(ids)), axis[seg]]
-        order = np.lexsort((key, seg))
-        perm[at] = ids[order]
+        tri[node[leaf]] = perm[start[leaf]]
         inner = ~leaf
-        n_left = n_seg[inner] // 2
-        s_i, e_i, nd = start[inner], end[inner], node[inner]
-        start = np.concatenate([s_i, s_i + n_left])
-        end = np.concatenate([s_i + n_left, e_i])
-        node = np.concatenate([nd + 1, nd + 2 * n_left])
+        start, end, node, n_seg = start[inner], end[inner], node[inner], n_seg[inner]
+        if not len(node):
+            break
+        at = _ranges(start, end)
+        seg = np.repeat(np.arange(len(node)), n_seg)
+        ids = perm[at]
+        cts = centroid[ids]
+        first = n_seg.cumsum() - n_seg
+        extent = np.maximum.reduceat(cts, first, axis=0) - np.minimum.reduceat(cts, first, axis=0)
+        key = cts[np.arange(len(ids)), np.argmax(extent, axis=1)[seg]]
+        perm[at] = ids[np.lexsort((key, seg))]  # the median split along the longest axis
+        n_left = n_seg // 2
+        levels.append((node, n_left))
+        mid = start + n_left
+        start, end = np.concatenate([start, mid]), np.concatenate([mid, end])
+        node = np.concatenate([node + 1, node + 2 * n_left])
+    # leaves: exact aggregates of their triangle
+    lf = np.flatnonzero(tri >= 0)
+    t = tri[lf]
+    lo, hi = np.zeros((M, 3)), np.zeros((M, 3))
+    clo, chi = np.zeros((M, 3)), np.zeros((M, 3))
+    lo[lf], hi[lf] = verts[t].min(axis=1), verts[t].max(axis=1)
+    center[lf] = 0.5 * (lo[lf] + hi[lf])
+    radius[lf] = np.sqrt(((verts[t] - center[lf][:, None, :]) ** 2).sum(-1).max(axis=1))
+    clo[lf] = chi[lf] = ccenter[lf] = centroid[t]
+    area[lf], B[lf], normal[lf] = tri_area[t], tri_B[t], tri_normal[t]
+    # bottom-up: each inner node from its two children (a deeper level, done first)
+    for nd, n_left in reversed(levels):
+        l, r = nd + 1, nd + 2 * n_left
+        lo[nd], hi[nd] = np.minimum(lo[l], lo[r]), np.maximum(hi[l], hi[r])
+        clo[nd], chi[nd] = np.minimum(clo[l], clo[r]), np.maximum(chi[l], chi[r])
+        c = center[nd] = 0.5 * (lo[nd] + hi[nd])
+        cc = ccenter[nd] = 0.5 * (clo[nd] + chi[nd])
+        grown = np.maximum(np.linalg.norm(c - center[l], axis=1) + radius[l],
+                           np.linalg.norm(c - center[r], axis=1) + radius[r])
+        radius[nd] = np.minimum(grown, 0.5 * np.linalg.norm(hi[nd] - lo[nd], axis=1))
+        cgrown = np.maximum(np.linalg.norm(cc - ccenter[l], axis=1) + cradius[l],
+                            np.linalg.norm(cc - ccenter[r], axis=1) + cradius[r])
+        cradius[nd] = np.minimum(cgrown, 0.5 * np.linalg.norm(chi[nd] - clo[nd], axis=1))
+        al, ar = area[l], area[r]
+        area[nd] = al + ar
+        B[nd] = (al[:, None] * B[l] + ar[:, None] * B[r]) / area[nd][:, None]
+        normal[nd] = (al[:, None] * normal[l] + ar[:, None] * normal[r]) / area[nd][:, None]
+    half[:] = 0.5 * (hi - lo)
     near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
                      ccenter, cradius, half)
     if points is not None:

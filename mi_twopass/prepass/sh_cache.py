@@ -9,9 +9,9 @@ Steps (:func:`build_radiance_cache`):
    the render reads the cache only there.
 2. **Clusters**: starting from one cluster of all points, a cluster whose bounding sphere
    (about its centroid) has a radius larger than ``alpha`` is split in two by 2-means, until every
-   cluster fits or ``max_clusters`` is reached (:func:`cluster_points`; numpy bookkeeping); where
-   the budget is reached first, alpha grows until every cluster fits (:func:`fit_clusters`), and
-   the cache's ``alpha`` (the near-field radius) is that one. The
+   cluster fits or ``max_clusters`` is reached (:func:`cluster_labels`: numpy, all clusters of a
+   level at once); where the budget is reached first, alpha grows until every cluster fits
+   (:func:`fit_clusters`), and the cache's ``alpha`` (the near-field radius) is that one. The
    paper's lazier criterion (split only where gather rays hit geometry inside the sphere) is not
    implemented: flat regions get clusters of size alpha too.
 3. **Gather** (eq. 4): per cluster, ``rays_per_cluster`` rays from shading points of the
@@ -155,49 +155,111 @@ def default_alpha(points, alpha_rel: float, fallback_diagonal: float) -> float:
     return float(alpha_rel) * max(diag, 1e-30)
 
 
-def cluster_points(p, alpha: float, max_clusters: int = 256, seed: int = 0):
-    """Split clusters of points ``p`` (n, 3) by 2-means while a cluster's bounding radius (about
-    its centroid) exceeds ``alpha`` (§4.1) → list of index arrays (one cluster per array)."""
+@dataclass
+class Clusters:
+    """A partition of shading points into clusters: ``labels`` (n,) the cluster of each point,
+    ``center`` (K, 3) the centroids, ``radius`` (K,) the largest distance of a member from its
+    centroid, ``count`` (K,) the members."""
+    labels: np.ndarray
+    center: np.ndarray
+    radius: np.ndarray
+    count: np.ndarray
+
+    def __len__(self) -> int:
+        return int(len(self.count))
+
+    def members(self):
+        """The point ids of each cluster (a list of K arrays, for tests and inspection)."""
+        order = np.argsort(self.labels, kind="stable")
+        return np.split(order, np.cumsum(self.count)[:-1]) if len(self) else []
+
+
+def _group_stats(p, labels, K):
+    """Per cluster of ``labels`` (K groups): counts, centroids, each point's distance from its
+    centroid and the groups' largest such distance."""
+    count = np.bincount(labels, minlength=K)
+    center = np.stack([np.bincount(labels, weights=p[:, k], minlength=K) for k in range(3)], 1)
+    center /= np.maximum(count, 1)[:, None]
+    d = np.linalg.norm(p - center[labels], axis=1)
+    radius = np.zeros(K)
+    np.maximum.at(radius, labels, d)
+    return count, center, d, radius
+
+
+def _group_argmax(values, labels, K):
+    """Per group 0..K−1 of ``labels``, the index of its largest value (groups must be
+    non-empty; ties: the first index, as ``np.argmax``)."""
+    order = np.lexsort((-np.arange(len(values)), values, labels))
+    return order[np.cumsum(np.bincount(labels, minlength=K)) - 1]
+
+
+def cluster_labels(p, alpha: float, max_clusters: int = 256) -> Clusters:
+    """§4.1 clustering, all clusters of a level at once (numpy, no loop over clusters): every
+    cluster whose bounding radius about its centroid exceeds ``alpha`` is split in two by
+    2-means (seeds: its point farthest from the centroid and the point farthest from that one;
+    at most 8 Lloyd iterations), level after level, until every cluster fits or
+    ``max_clusters`` is reached. Where the budget does not allow every split of a level, the
+    widest clusters split first. Coincident points cannot be split."""
     p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
-    if len(p) == 0:
-        return []
-    done, todo = [], [np.arange(len(p))]
-    while todo:
-        ids = todo.pop()
-        q = p[ids]
-        c = q.mean(axis=0)
-        d = np.linalg.norm(q - c, axis=1)
-        if d.max() <= alpha or len(ids) < 2 or len(done) + len(todo) + 2 > max_clusters:
-            done.append(ids)
-            continue
-        a = q[np.argmax(d)]
-        b = q[np.argmax(np.linalg.norm(q - a, axis=1))]
-        centres = np.stack([a, b])
-        lab = None
-        for _ in range(8):  # Lloyd iterations of 2-means, until the labels stop changing
-            new = ((q - centres[1]) ** 2).sum(-1) < ((q - centres[0]) ** 2).sum(-1)
-            if lab is not None and np.array_equal(new, lab):
+    n = len(p)
+    labels = np.zeros(n, dtype=np.int64)
+    K = 1 if n else 0
+    splittable = np.ones(K, dtype=bool)
+    while True:
+        count, center, d, radius = _group_stats(p, labels, K)
+        want = np.flatnonzero(splittable & (radius > alpha) & (count >= 2))
+        room = int(max_clusters) - K
+        if room <= 0 or len(want) == 0:
+            break
+        if len(want) > room:  # the widest first
+            want = want[np.argsort(-radius[want], kind="stable")[:room]]
+        split = np.zeros(K, dtype=bool)
+        split[want] = True
+        sel = np.flatnonzero(split[labels])
+        q, ql = p[sel], labels[sel]
+        # seeds of 2-means: the member farthest from the centroid, then the one farthest from it
+        seg = np.full(K, 0, dtype=np.int64)
+        seg[want] = np.arange(len(want))
+        g = seg[ql]  # each selected point's group among the splitting clusters
+        a = q[_group_argmax(d[sel], g, len(want))]
+        b = q[_group_argmax(np.linalg.norm(q - a[g], axis=1), g, len(want))]
+        cA, cB = a.copy(), b.copy()
+        side = None
+        for _ in range(8):  # Lloyd iterations, until no label changes
+            new = ((q - cB[g]) ** 2).sum(-1) < ((q - cA[g]) ** 2).sum(-1)
+            if side is not None and np.array_equal(new, side):
                 break
-            lab = new
-            if lab.all() or not lab.any():
-                break
-            centres = np.stack([q[~lab].mean(axis=0), q[lab].mean(axis=0)])
-        lab = lab.astype(np.int64)
-        if lab.min() == lab.max():  # all points coincide: cannot split
-            done.append(ids)
-            continue
-        todo += [ids[lab == 0], ids[lab == 1]]
-    return done
+            side = new
+            nB = np.bincount(g, weights=side, minlength=len(want))
+            nA = np.bincount(g, minlength=len(want)) - nB
+            both = (nA > 0) & (nB > 0)  # a one-sided group keeps its centres (cannot split)
+            for c, w, m in ((cA, ~side, nA), (cB, side, nB)):
+                s = np.stack([np.bincount(g, weights=q[:, k] * w, minlength=len(want))
+                              for k in range(3)], 1)
+                c[both] = s[both] / m[both][:, None]
+        nB = np.bincount(g, weights=side, minlength=len(want))
+        nA = np.bincount(g, minlength=len(want)) - nB
+        ok = (nA > 0) & (nB > 0)
+        splittable[want[~ok]] = False  # all its points coincide
+        new_id = np.full(len(want), -1, dtype=np.int64)
+        new_id[ok] = K + np.arange(int(ok.sum()))
+        move = side & ok[g]
+        labels[sel[move]] = new_id[g[move]]
+        K += int(ok.sum())
+        splittable = np.concatenate([splittable, np.ones(int(ok.sum()), dtype=bool)])
+    if n == 0:
+        return Clusters(labels, np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64))
+    return Clusters(labels, center, radius, count)
 
 
-def _fits(clusters, p, alpha) -> bool:
-    return all(np.linalg.norm(p[ids] - p[ids].mean(axis=0), axis=1).max() <= alpha * (1 + 1e-9)
-               for ids in clusters)
+def cluster_points(p, alpha: float, max_clusters: int = 256, seed: int = 0):
+    """:func:`cluster_labels` as a list of index arrays (one cluster per array)."""
+    return cluster_labels(p, alpha, max_clusters).members()
 
 
 def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0):
-    """:func:`cluster_points` with every cluster within ``alpha``, growing alpha where
-    ``max_clusters`` cannot cover the points with clusters that small → ``(alpha', clusters)``
+    """:func:`cluster_labels` with every cluster within ``alpha``, growing alpha where
+    ``max_clusters`` cannot cover the points with clusters that small → ``(alpha', Clusters)``
     with alpha' ≥ alpha the smallest size found (doubling, then 6 bisection steps) at which the
     budget suffices.
 
@@ -210,25 +272,26 @@ def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0):
     caller must use alpha' there."""
     p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
     alpha = float(alpha)
-    clusters = cluster_points(p, alpha, max_clusters, seed)
-    if len(p) == 0 or _fits(clusters, p, alpha):
+    fits = lambda c, a: len(c) == 0 or float(c.radius.max()) <= a * (1 + 1e-9)  # noqa: E731
+    clusters = cluster_labels(p, alpha, max_clusters)
+    if fits(clusters, alpha):
         return alpha, clusters
     lo, hi = alpha, 2.0 * alpha
     extent = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
     best = None
     for _ in range(64):
-        c = cluster_points(p, hi, max_clusters, seed)
-        if _fits(c, p, hi):
+        c = cluster_labels(p, hi, max_clusters)
+        if fits(c, hi):
             best = c
             break
         lo, hi = hi, 2.0 * hi
         if hi > 4.0 * extent + alpha:  # one cluster always fits its own extent
-            best = cluster_points(p, hi, max_clusters, seed)
+            best = cluster_labels(p, hi, max_clusters)
             break
     for _ in range(6):
         mid = float(np.sqrt(lo * hi))
-        c = cluster_points(p, mid, max_clusters, seed)
-        if _fits(c, p, mid):
+        c = cluster_labels(p, mid, max_clusters)
+        if fits(c, mid):
             hi, best = mid, c
         else:
             lo = mid
@@ -470,7 +533,7 @@ class RadianceCache:
 
 def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=128, seed=0,
                      reg=sh.DEFAULT_REG):
-    """Eq. 4: per cluster, ``rays_per_cluster`` gather rays from random shading points of the
+    """Eq. 4: per cluster of ``clusters`` (:class:`Clusters`), ``rays_per_cluster`` gather rays from random shading points of the
     cluster (uniform hemisphere) read B_r/π of the patch hit where it is cached (0 elsewhere);
     hits closer than ``alpha`` are left out (near field). Ray origins are offset relative to
     the scene's size. → ``(coeffs (K, 9, 3), rays traced)``."""
@@ -480,8 +543,13 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
         return coeffs, 0
     rng = np.random.default_rng(hash31(seed, 3))
     m = int(rays_per_cluster)
-    src = np.concatenate([ids[rng.integers(0, len(ids), m)] for ids in clusters])
     owner = np.repeat(np.arange(K), m)
+    # m members of each cluster drawn at random (with replacement), all clusters at once
+    by_cluster = np.argsort(clusters.labels, kind="stable")
+    first = np.cumsum(clusters.count) - clusters.count
+    pick = np.minimum((rng.random(K * m) * clusters.count[owner]).astype(np.int64),
+                      clusters.count[owner] - 1)
+    src = by_cluster[first[owner] + pick]
     o, nn = p[src], n[src]
     # uniform hemisphere about nn: local (x, y, z) then the frame of nn
     u1, u2 = rng.random(len(src)), rng.random(len(src))
@@ -527,9 +595,7 @@ def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
         shading_points = collect_shading_points(scene, sensor, max_points, seed)
     p, n, shading_rays = shading_points
     alpha, clusters = fit_clusters(p, alpha, max_clusters, seed)
-    center = np.array([p[ids].mean(axis=0) for ids in clusters]).reshape(-1, 3)
-    radius = np.array([np.linalg.norm(p[ids] - p[ids].mean(axis=0), axis=1).max()
-                       for ids in clusters]).reshape(-1)
+    center, radius = clusters.center.reshape(-1, 3), clusters.radius.reshape(-1)
     coeffs, rays = gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster,
                                     seed)
     cache = RadianceCache(center, radius, coeffs, float(alpha), amb, p, rays, shading_rays)

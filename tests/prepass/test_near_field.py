@@ -248,3 +248,29 @@ def test_cell_start_lists_sum_what_the_root_walk_sums(open_factor):
     got2, _ = run(cells, x, n, B_D, 0.3, open_factor=open_factor)
     np.testing.assert_allclose(got2, run(root, x, n, B_D, 0.3, open_factor=open_factor)[0],
                                atol=1e-6 * scale)
+
+
+def test_node_bounds_hold_every_vertex_and_centroid():
+    """The bottom-up build: every node's box, bounding sphere (about the box centre) and
+    centroid sphere hold all vertices and centroids of its subtree (leaves exactly); area and
+    the area-weighted radiosity are the sums over its triangles."""
+    verts, tn, tB, _, _, _ = random_case(np.random.default_rng(5), T=90, P=1)
+    nf = build_near_field(verts, tn, tB)
+    area = 0.5 * np.linalg.norm(np.cross(nf.verts[:, 1] - nf.verts[:, 0],
+                                         nf.verts[:, 2] - nf.verts[:, 0]), axis=1)
+    for node in range(nf.node_count):
+        below = nf.tri[node:nf.skip[node]]
+        t = below[below >= 0]
+        v = nf.verts[t].reshape(-1, 3)
+        c = nf.verts[t].mean(axis=1)
+        eps = 1e-9
+        assert np.all(np.abs(v - nf.center[node]) <= nf.half[node] + eps)
+        assert np.linalg.norm(v - nf.center[node], axis=1).max() <= nf.radius[node] + eps
+        assert np.linalg.norm(c - nf.ccenter[node], axis=1).max() <= nf.cradius[node] + eps
+        np.testing.assert_allclose(nf.area[node], area[t].sum())
+        np.testing.assert_allclose(nf.B[node], (area[t, None] * nf.tri_B[t]).sum(0)
+                                   / area[t].sum())
+        if len(t) == 1:
+            np.testing.assert_allclose(nf.radius[node],
+                                       np.linalg.norm(v - nf.center[node], axis=1).max())
+            assert nf.cradius[node] == 0.0
