@@ -116,9 +116,11 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
     The RBF interpolation visits only the clusters listed in the lane's cell of a uniform grid
     (those whose support touches the cell); the BVH walk skips nodes with no triangle centroid
-    within α and nodes whose box lies on or below the tangent plane, and starts from its cell's
-    list of subtrees (:class:`~mi_twopass.prepass.near_field.NodeCells`, built in the prepass for
-    the cells around the shading points), which sums the same nodes as a walk from the root.
+    within α and nodes whose box lies on or below the tangent plane. Around the shading points
+    a read does not walk it: its cell lists the triangles a point of the cell may count
+    (:class:`~mi_twopass.prepass.near_field.LeafCells`, built in the prepass for the cells around
+    the shading points), and it sums their exact form factors, as the walk from the root does
+    with no disks.
 
     Simplifications: ρ/π is the BSDF's value toward the normal at the cache vertex (textures
     included); B_D uses the geometric normal (a shading normal that differs is ignored);
@@ -208,7 +210,9 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          field would hold more triangles (default: 131072; stat ``split_complete``).
      * - near_cell_rel
        - |float|
-       - Cell size of the walk's start lists, in units of α (default: 1).
+       - Cell size of the near field's leaf lists, in units of α (default: 0.5): a cache
+         read in a listed cell sums its cell's triangles instead of walking the BVH; smaller
+         cells list fewer triangles each but cost more prepass and memory.
      * - ignore_media
        - |bool|
        - Render a scene with participating media as ``path`` does, ignoring them (default:
@@ -252,7 +256,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.max_clusters = read_int(props, "max_clusters", 1024, minimum=1)
         self.rays_per_cluster = read_int(props, "rays_per_cluster", 128, minimum=1)
         self.max_near_triangles = read_int(props, "max_near_triangles", 1 << 17, minimum=1)
-        self.near_cell_rel = read_float(props, "near_cell_rel", 1.0, minimum=0.0, strict=True)
+        self.near_cell_rel = read_float(props, "near_cell_rel", 0.5, minimum=0.0, strict=True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.near_far = read_choice(props, "near_far", "direction", ("direction", "mean"))
         self.direct = read_choice(props, "direct", "emitter", DIRECT_MODES)

@@ -32,8 +32,9 @@ factors sit in symbolic branches, so a packet of lanes skips the one none of its
 
 The BVH is stored flat in pre-order with *skip links* (the index of the next node once a subtree
 is done): a lane walks it with one counter and no stack (:meth:`NearField.correction`, a Dr.Jit
-loop), starting from the list of subtrees of its cell (:class:`NodeCells`: the top of the tree
-resolved once per cell in the prepass, only around the camera's shading points).
+loop). Around the camera's shading points, where the cache is read, a lane does not walk the
+tree: its cell lists the leaves a point of the cell may count (:class:`LeafCells`, built in the
+prepass), and it sums those with the same leaf tests.
 
 §5 lazy splitting (:func:`split_near_triangles`): triangles that a shading point may lie within
 alpha of are bisected until their longest edge is ≤ alpha, each half keeping its patch's
@@ -89,7 +90,7 @@ class NearField:
     ccenter: np.ndarray
     cradius: np.ndarray
     half: np.ndarray = None
-    cells: "NodeCells" = None
+    cells: "LeafCells" = None
 
     @property
     def node_count(self) -> int:
@@ -104,11 +105,11 @@ class NearField:
 
     @cached_property
     def _tables(self) -> Tables:
-        """Dr.Jit copies of the tree, the triangles and the cell lists (:meth:`NodeCells.tables`),
+        """Dr.Jit copies of the tree, the triangles and the cell lists (:meth:`LeafCells.tables`),
         built on first use and kept (:func:`build_near_field` builds them, outside any symbolic
         loop; set ``cells`` before)."""
         f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
-        cells = self.cells if self.cells is not None else NodeCells.root_only()
+        cells = self.cells if self.cells is not None else LeafCells.empty()
         t = Tables(
             center=f(self.center), radius=f(self.radius), area=f(self.area), B=f(self.B),
             normal=f(self.normal), skip=mi.UInt32(self.skip.astype(np.uint32)),
@@ -128,27 +129,28 @@ class NearField:
         triangle (node) subtracts :math:`\pi L_F(D_t)`, the far field in its own direction D_t
         (eq. 5 without the constant-L_F assumption, footnote 1), instead of B_D.
 
-        Lanes start from their cell's list (:class:`NodeCells`) when the near field has one
-        built for this ``alpha`` and an open factor ≤ ``open_factor``; else from the root. Both
-        sum the same nodes."""
+        Where the near field has cell lists (:class:`LeafCells`) built for this ``alpha``, a
+        lane in a listed cell sums its cell's leaves (exactly: as ``open_factor = inf``) and the
+        others walk the BVH from the root; else every lane walks from the root."""
         if self.node_count == 0:
             return mi.Color3f(0.0), mi.UInt32(0)
-        if L_F is None:
-            L_F = []
+        L_F = [] if L_F is None else list(L_F)
         t = self._tables
         x = mi.Point3f(x)
+        active = mi.Bool(active)
         cells = self.cells
-        if (cells is not None and float(alpha) == cells.alpha
-                and float(open_factor) >= cells.open_factor):
-            first, count = NodeCells.lookup(x, t)
-        else:
-            first, count = mi.UInt32(0), mi.UInt32(1)
-        return self._traverse(x, n, B_D, alpha, active, open_factor, list(L_F), first, count)
+        if cells is None or float(alpha) != cells.alpha or cells.entries == 0:
+            return self._traverse(x, n, B_D, alpha, active, open_factor, L_F)
+        first, count = LeafCells.lookup(x, t)
+        listed = count > 0
+        B_list, v_list = self._walk_leaves(x, n, B_D, alpha, active & listed, L_F, first, count)
+        B_root, v_root = self._traverse(x, n, B_D, alpha, active & ~listed, open_factor, L_F)
+        return B_list + B_root, v_list + v_root
 
     @dr.syntax
-    def _traverse(self, x, n, B_D, alpha, active, open_factor, L_F, first, count):
-        """The stackless skip-link walk of :meth:`correction`, one lane per point, over the
-        subtrees listed in ``cell_nodes[first : first + count]`` (entry 0 is the root)."""
+    def _traverse(self, x, n, B_D, alpha, active, open_factor, L_F):
+        """The stackless skip-link walk of :meth:`correction` from the root, one lane per
+        point."""
         t = self._tables
         n = mi.Vector3f(n)
         abs_n = dr.abs(n)
@@ -157,11 +159,8 @@ class NearField:
         of = mi.Float(float(open_factor) if np.isfinite(open_factor) else 3e38)
         B_C = mi.Color3f(0.0)
         visits = mi.UInt32(0)
-        j = mi.UInt32(first)
-        stop = j + mi.UInt32(count)
-        active = mi.Bool(active) & (j < stop)
-        node = dr.gather(mi.UInt32, t["cell_nodes"], j, active)
-        end = dr.gather(mi.UInt32, t["skip"], node, active)
+        node = mi.UInt32(0)
+        active = mi.Bool(active)
         while dr.hint(active, label="near_field_bvh"):
             c = dr.gather(mi.Point3f, t["center"], node, active)
             r = dr.gather(mi.Float, t["radius"], node, active)
@@ -185,78 +184,114 @@ class NearField:
                 B_C += (Bn - _far(B_D, L_F, c - x)) * point_to_disk_approx(x, n, c, m, A)
             # a leaf counts if P is in front of its triangle (its centroid is the leaf's ccenter,
             # already within alpha): tested before the branch, so the form factor runs only there
-            nt = dr.gather(mi.Vector3f, t["tri_normal"], tri, leaf)
-            a = dr.gather(mi.Point3f, t["verts"], 3 * tri, leaf)
-            use = leaf & (dr.dot(nt, x - a) > FRONT_EPS * alpha)
-            if use:  # the exact form factor of its triangle
-                b = dr.gather(mi.Point3f, t["verts"], 3 * tri + 1)
-                c3 = dr.gather(mi.Point3f, t["verts"], 3 * tri + 2)
-                Bt = dr.gather(mi.Color3f, t["tri_B"], tri)
-                F_tri = polygon_form_factor(x, n, [a, b, c3])
-                B_C += (Bt - _far(B_D, L_F, cc - x)) * F_tri
+            B_C += self._leaf_term(x, B_D, L_F, n, tri, cc, alpha, leaf)
             descend = active & ~miss & ~is_leaf & ~as_disk
-            nxt = dr.select(descend, node + 1, skip)
-            done = nxt >= end  # this listed subtree is summed: on to the next list entry
-            j = dr.select(done, j + 1, j)
-            active &= ~done | (j < stop)
-            nj = dr.gather(mi.UInt32, t["cell_nodes"], j, active & done)
-            node = dr.select(done, nj, nxt)
-            end = dr.select(done, dr.gather(mi.UInt32, t["skip"], nj, active & done), end)
+            node = dr.select(descend, node + 1, skip)
+            active &= node < t["M"]
         return B_C, visits
 
+    @dr.syntax
+    def _walk_leaves(self, x, n, B_D, alpha, active, L_F, first, count):
+        """The lanes of listed cells: their cell's leaves ``cell_leaves[first : first +
+        count]``, with the leaf tests of :meth:`_traverse` (centroid within alpha, box above the
+        tangent plane, x in front of the triangle) and its exact form factor."""
+        t = self._tables
+        n = mi.Vector3f(n)
+        abs_n = dr.abs(n)
+        B_D = mi.Color3f(B_D)
+        alpha = dr.opaque(mi.Float, float(alpha))
+        B_C = mi.Color3f(0.0)
+        visits = mi.UInt32(0)
+        j = mi.UInt32(first)
+        stop = j + mi.UInt32(count)
+        active = mi.Bool(active) & (j < stop)
+        while dr.hint(active, label="near_field_leaves"):
+            node = dr.gather(mi.UInt32, t["cell_leaves"], j, active)
+            c = dr.gather(mi.Point3f, t["center"], node, active)
+            h = dr.gather(mi.Vector3f, t["half"], node, active)
+            cc = dr.gather(mi.Point3f, t["ccenter"], node, active)
+            tri = dr.gather(mi.UInt32, t["tri"], node, active)
+            visits += 1
+            miss = (dr.norm(cc - x) > alpha) | (dr.dot(n, c - x) + dr.dot(abs_n, h) <= 0)
+            B_C += self._leaf_term(x, B_D, L_F, n, tri, cc, alpha, active & ~miss)
+            j += 1
+            active &= j < stop
+        return B_C, visits
 
-#: most cells along one axis of the start-list grid (:class:`NodeCells`)
+    @dr.syntax
+    def _leaf_term(self, x, B_D, L_F, n, tri, cc, alpha, leaf):
+        """(R_t − far field) · F(x → t) of triangle ``tri`` (centroid ``cc``) where x is in front
+        of it (0 elsewhere): the exact form factor, in a symbolic branch."""
+        t = self._tables
+        nt = dr.gather(mi.Vector3f, t["tri_normal"], tri, leaf)
+        a = dr.gather(mi.Point3f, t["verts"], 3 * tri, leaf)
+        use = leaf & (dr.dot(nt, x - a) > FRONT_EPS * alpha)
+        term = mi.Color3f(0.0)
+        if use:
+            b = dr.gather(mi.Point3f, t["verts"], 3 * tri + 1)
+            c3 = dr.gather(mi.Point3f, t["verts"], 3 * tri + 2)
+            Bt = dr.gather(mi.Color3f, t["tri_B"], tri)
+            term = (Bt - _far(B_D, L_F, cc - x)) * polygon_form_factor(x, n, [a, b, c3])
+        return term
+
+
+#: most cells along one axis of the list grid (:class:`LeafCells`)
 CELLS_MAX_RES = 128
 
 
-class NodeCells:
-    """Per-cell start lists of the BVH walk, built in the prepass only where the image needs them
-    (cells holding a camera shading point, and their 26 neighbours, so that render-time points
-    between the shading points are covered).
+class LeafCells:
+    """Per-cell lists of the BVH leaves (triangles) a point of the cell may count, built in the
+    prepass only where the image needs them: cells holding a camera shading point, and their 26
+    neighbours, so that render-time points between the shading points are covered.
 
-    For the box of a cell, the top of the tree is resolved once in numpy: a node whose centroid
-    sphere is beyond ``alpha`` from every point of the box is dropped (the walk would cull it for
-    every lane of the cell), a leaf whose triangle no point of the box is in front of is dropped,
-    and an inner node that every point of the box would descend into (its centroid sphere within
-    ``alpha`` and it nearer than ``open_factor`` × its radius, for all points of the box) is
-    replaced by its two children. The remaining nodes (pre-order) are the cell's list: a lane
-    walks each listed subtree with the usual rules (:meth:`NearField.correction`), so it sums the
-    same nodes as the walk from the root, in the same order. (A node that the root walk culls
-    below a lane's tangent plane has all its descendants culled the same way: the test is on the
-    node's box, and a child's box lies in its parent's.) Boxes are grown by a small margin so that
-    float32 lanes never disagree with the float64 decisions.
+    A leaf is listed in a cell when its triangle's centroid lies within ``alpha`` of the cell's
+    box (T holds triangles by centroid) and some point of the box is in front of the triangle
+    (one-sided), the box grown by a small margin so that no float32 lane needs a leaf the
+    build left out. A lane in a listed cell walks its cell's list with the leaf tests of the
+    BVH walk (:meth:`NearField.correction`) and so sums exactly the triangles the walk from the
+    root sums with ``open_factor = inf``, in the same (pre-)order: every triangle's exact form
+    factor, no disks (§7's disks stand for nodes far from x, and a list holds none). Lanes
+    outside the listed cells walk the BVH from the root. Valid for the ``alpha`` it was built
+    for.
 
-    Lanes outside the listed cells start at the root (entry 0). Valid for the ``alpha`` it was
-    built for and every open factor ≥ ``open_factor``.
+    Why leaves and not the top of the tree: a cache read visited ~98 nodes from per-cell lists
+    of subtrees (window_interior and the office at 256²), 54 of them culled and 34 opened, for
+    ~10 leaves tested and ~5 counted. The (leaf, cell) pairs come from one Dr.Jit kernel over
+    every leaf and every cell of the cube around its centroid, compressed, then ordered per
+    cell in numpy.
     """
 
-    def __init__(self, lo, cell, res, first, count, nodes, alpha, open_factor):
+    def __init__(self, lo, cell, res, first, count, leaves, alpha):
         self.lo, self.cell, self.res = lo, cell, res
-        self.first, self.count, self.nodes = first, count, nodes
-        self.alpha, self.open_factor = float(alpha), float(open_factor)
+        self.first, self.count, self.leaves = first, count, leaves
+        self.alpha = float(alpha)
 
     @property
     def nbytes(self) -> int:
-        return int(4 * (self.first.size + self.count.size + self.nodes.size))
+        return int(4 * (self.first.size + self.count.size + self.leaves.size))
 
     @property
     def listed_cells(self) -> int:
-        return int((self.first > 0).sum())
+        return int((self.count > 0).sum())
+
+    @property
+    def entries(self) -> int:
+        return int(self.leaves.size)
 
     @classmethod
-    def root_only(cls):
-        """No cells: every lane starts at the root."""
+    def empty(cls):
+        """No listed cell: every lane walks from the root."""
         return cls(np.full(3, np.inf), np.ones(3), np.ones(3, dtype=np.int64),
-                   np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.int64),
-                   np.zeros(1, dtype=np.int64), np.nan, np.inf)
+                   np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64),
+                   np.zeros(1, dtype=np.int64), np.nan)
 
     @classmethod
-    def build(cls, near, points, alpha, cell_size=None, open_factor=OPEN_FACTOR):
+    def build(cls, near, points, alpha, cell_size=None):
         alpha = float(alpha)
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1)]
         if len(p) == 0 or near.node_count == 0 or not alpha > 0:
-            return cls.root_only()
+            return cls.empty()
         h = float(cell_size) if cell_size else 0.5 * alpha
         lo = p.min(axis=0) - h
         extent = p.max(axis=0) + h - lo
@@ -273,61 +308,29 @@ class NodeCells:
             o[dst] |= occ[src]
             o[src] |= occ[dst]
             occ = o
-        cid = np.flatnonzero(occ)
-        cijk = np.stack(np.unravel_index(cid, tuple(res)), axis=1)
         margin = 1e-5 * (float(np.abs(p).max()) + alpha) + 1e-4 * alpha
-        box_lo = lo + cijk * cell - margin
-        box_hi = lo + (cijk + 1) * cell + margin
-        of = float(open_factor)
-        tri = near.tri
-        # (cell, node) pairs, level by level from the root
-        pc, pn = np.arange(len(cid)), np.zeros(len(cid), dtype=np.int64)
-        out_c, out_n = [], []
-        while len(pc):
-            blo, bhi = box_lo[pc], box_hi[pc]
-            cc, cr = near.ccenter[pn], near.cradius[pn]
-            dmin = np.linalg.norm(np.maximum(np.maximum(blo - cc, cc - bhi), 0.0), axis=1)
-            dmax = np.linalg.norm(np.maximum(np.abs(cc - blo), np.abs(cc - bhi)), axis=1)
-            drop = dmin > alpha + cr
-            leaf = tri[pn] >= 0
-            if leaf.any():  # no point of the box in front of the triangle: the lane's use test
-                li = np.nonzero(leaf)[0]
-                t = tri[pn[li]]
-                nt, a = near.tri_normal[t], near.verts[t, 0]
-                front = (nt * np.where(nt > 0, bhi[li], blo[li]) - nt * a).sum(axis=1)
-                drop[li] |= front <= FRONT_EPS * alpha
-            c, r = near.center[pn], near.radius[pn]
-            cmax = np.linalg.norm(np.maximum(np.abs(c - blo), np.abs(c - bhi)), axis=1)
-            expand = ~drop & ~leaf & (dmax <= alpha + cr) & (cmax <= of * r)
-            keep = ~drop & ~expand
-            out_c.append(pc[keep]); out_n.append(pn[keep])
-            e = np.nonzero(expand)[0]
-            left = pn[e] + 1
-            pc = np.concatenate([pc[e], pc[e]])
-            pn = np.concatenate([left, near.skip[left]])
-        oc, on = np.concatenate(out_c), np.concatenate(out_n)
-        order = np.lexsort((on, oc))  # per cell, pre-order (= the root walk's order)
-        oc, on = oc[order], on[order]
-        counts = np.bincount(oc, minlength=len(cid))
-        starts = 1 + np.concatenate([[0], np.cumsum(counts)[:-1]])  # entry 0: the root
-        first = np.zeros(int(np.prod(res)), dtype=np.int64)
-        count = np.ones(int(np.prod(res)), dtype=np.int64)
-        first[cid], count[cid] = starts, counts
-        nodes = np.concatenate([[0], on]).astype(np.int64)
-        return cls(lo, cell, res, first, count, nodes, alpha, of)
+        leaves = np.flatnonzero(near.tri >= 0)  # pre-order: the root walk's order
+        rank, cid = _leaf_cell_pairs(near, leaves, occ.ravel(), lo, cell, res, alpha, margin)
+        order = np.argsort(cid, kind="stable")  # per cell; leaves ascending within (lane order)
+        cid, rank = cid[order], rank[order]
+        C = int(np.prod(res))
+        count = np.bincount(cid, minlength=C).astype(np.int64)
+        first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+        return cls(lo, cell, res, first, count, leaves[rank].astype(np.int64), alpha)
 
     def tables(self):
         """Dr.Jit copies (grid constants opaque: a new prepass does not recompile)."""
         return dict(cell_first=mi.UInt32(self.first.astype(np.uint32)),
                     cell_count=mi.UInt32(self.count.astype(np.uint32)),
-                    cell_nodes=mi.UInt32(self.nodes.astype(np.uint32)),
+                    cell_leaves=mi.UInt32(self.leaves.astype(np.uint32)),
                     cell_lo=dr.opaque(mi.Point3f, [float(v) for v in self.lo]),
                     cell_inv=dr.opaque(mi.Vector3f, [float(1.0 / v) for v in self.cell]),
                     cell_res=dr.opaque(mi.Vector3i, [int(v) for v in self.res]))
 
     @staticmethod
     def lookup(x, t):
-        """Dr.Jit: the (first, count) of the start list of the cell of ``x`` (the root outside)."""
+        """Dr.Jit: the (first, count) of the list of the cell of ``x``; count 0 outside the
+        grid and in unlisted cells (those lanes walk from the root)."""
         q = dr.floor((x - t["cell_lo"]) * t["cell_inv"])
         res = mi.Vector3f(t["cell_res"])
         inside = dr.all((q >= 0) & (q < res))
@@ -335,7 +338,56 @@ class NodeCells:
         cid = mi.UInt32((qi.x * t["cell_res"].y + qi.y) * t["cell_res"].z + qi.z)
         first = dr.gather(mi.UInt32, t["cell_first"], cid, inside)
         count = dr.gather(mi.UInt32, t["cell_count"], cid, inside)
-        return dr.select(inside, first, 0), dr.select(inside, count, 1)
+        return first, dr.select(inside, count, 0)
+
+
+def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
+    """The (leaf rank, cell id) pairs of :meth:`LeafCells.build`, in leaf order: one Dr.Jit
+    kernel over every leaf and every cell of the cube of cells that holds the box of half-side
+    alpha + margin about its centroid (one more cell on each side than that box needs, against
+    float32 rounding), kept where the cell is ``occupied``, its box (grown by ``margin``)
+    within ``alpha`` of the centroid and partly in front of the triangle. Sizes and constants
+    are opaque: no kernel per scene."""
+    L = len(leaves)
+    reach = alpha + margin
+    span = (np.ceil(2.0 * reach / cell) + 3).astype(np.int64)
+    K = int(np.prod(span))
+    if L == 0 or L * K >= 1 << 31:
+        raise ValueError(f"near field: {L} leaves x {K} cells each is too many for the lists")
+    f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
+    tri = near.tri[leaves]
+    cc_t, nt_t, a_t = f(near.ccenter[leaves]), f(near.tri_normal[tri]), f(near.verts[tri, 0])
+    occ_t = mi.UInt32(occupied.astype(np.uint32))
+    K_o, sy, sz = (dr.opaque(mi.UInt32, int(v)) for v in (K, span[1], span[2]))
+    res_o = dr.opaque(mi.Vector3i, [int(v) for v in res])
+    lo_o = dr.opaque(mi.Point3f, [float(v) for v in lo])
+    cell_o = dr.opaque(mi.Vector3f, [float(v) for v in cell])
+    alpha_o, margin_o = dr.opaque(mi.Float, alpha), dr.opaque(mi.Float, margin)
+    reach_o = dr.opaque(mi.Float, reach)
+
+    def pair(idx):
+        li = idx // K_o
+        o = idx - li * K_o
+        off = mi.Vector3i(mi.Int32(o // (sy * sz)), mi.Int32((o // sz) % sy), mi.Int32(o % sz))
+        c = dr.gather(mi.Point3f, cc_t, li)
+        q = mi.Vector3i(dr.floor((c - reach_o - lo_o) / cell_o)) - 1 + off
+        inside = dr.all((q >= 0) & (q < res_o))
+        cid = mi.UInt32((q.x * res_o.y + q.y) * res_o.z + q.z)
+        return li, c, q, inside, cid
+
+    idx = dr.arange(mi.UInt32, L * K)
+    li, c, q, inside, cid = pair(idx)
+    ok = inside & (dr.gather(mi.UInt32, occ_t, cid, inside) != 0)
+    blo = lo_o + mi.Vector3f(q) * cell_o - margin_o
+    bhi = blo + cell_o + 2.0 * margin_o
+    dmin = dr.norm(dr.maximum(dr.maximum(blo - c, c - bhi), 0.0))
+    nt = dr.gather(mi.Vector3f, nt_t, li, ok)
+    a = dr.gather(mi.Point3f, a_t, li, ok)
+    front = dr.dot(nt, dr.select(nt > 0, bhi, blo)) - dr.dot(nt, a)
+    keep = ok & (dmin <= alpha_o) & (front > FRONT_EPS * alpha_o)
+    sel = dr.compress(keep)
+    li, _, _, _, cid = pair(sel)
+    return np.asarray(li).astype(np.int64), np.asarray(cid).astype(np.int64)
 
 
 def _far(B_D, L_F, d):
@@ -359,7 +411,7 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     upper bounds, exact at the leaves, so the walk's culling stays conservative.
 
     With shading ``points`` (n, 3) and ``alpha``, also the per-cell start lists of the walk
-    (:class:`NodeCells`, cells of ``cell_size``, default ``alpha``/2)."""
+    (:class:`LeafCells`, cells of ``cell_size``, default ``alpha``/2)."""
     verts = np.asarray(verts, dtype=np.float64).reshape(-1, 3, 3)
     tri_normal = np.asarray(tri_normal, dtype=np.float64).reshape(-1, 3)
     tri_B = np.asarray(tri_B, dtype=np.float64).reshape(-1, 3)
@@ -438,7 +490,7 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
                      ccenter, cradius, half)
     if points is not None:
-        near.cells = NodeCells.build(near, points, alpha, cell_size=cell_size)
+        near.cells = LeafCells.build(near, points, alpha, cell_size=cell_size)
     near._tables  # Dr.Jit copies now, never first inside a symbolic loop
     return near
 

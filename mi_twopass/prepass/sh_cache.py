@@ -651,7 +651,7 @@ class CacheSettings:
     #: cached (:func:`uncache_bright`)
     bright_contrast: float = BRIGHT_CONTRAST
     max_near_triangles: int = 1 << 17
-    near_cell_rel: float = 1.0
+    near_cell_rel: float = 0.5
     ignore_media: bool = False
     #: no vertex reads the cache and no debug view needs it: build nothing (path tracing)
     path_only: bool = False

@@ -6,7 +6,7 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.form_factor import polygon_form_factor
-from mi_twopass.prepass.near_field import (NodeCells, build_near_field, correction_numpy,
+from mi_twopass.prepass.near_field import (build_near_field, correction_numpy,
                                           split_near_triangles)
 
 
@@ -219,11 +219,11 @@ def test_lazy_split_budget_and_no_points():
     assert complete and len(v) == 1
 
 
-@pytest.mark.parametrize("open_factor", [4.0, np.inf])
-def test_cell_start_lists_sum_what_the_root_walk_sums(open_factor):
-    """NodeCells: a lane that starts from its cell's list sums the same nodes as the walk from
-    the root (points at, between and away from the shading points), and the lists are shorter
-    than the walk; with open_factor = inf both equal the brute-force sum."""
+def test_cell_leaf_lists_sum_what_the_root_walk_sums_without_disks():
+    """LeafCells: a lane in a listed cell sums its cell's leaves, exactly the triangles the walk
+    from the root sums with open_factor = inf (points at, between and away from the shading
+    points; those away walk from the root), visiting fewer nodes; the brute-force sum agrees.
+    With another alpha the lists do not apply and every lane walks from the root."""
     rng = np.random.default_rng(11)
     verts, tn, tB, _, _, _ = random_case(rng, T=120, P=1)
     pts = rng.uniform(-1, 1, (200, 3))
@@ -235,19 +235,50 @@ def test_cell_start_lists_sum_what_the_root_walk_sums(open_factor):
     B_D = rng.uniform(0, 1, (len(x), 3))
     root = build_near_field(verts, tn, tB)
     cells = build_near_field(verts, tn, tB, points=pts, alpha=alpha, cell_size=0.25)
-    assert cells.cells.listed_cells > 0
-    got_root, v_root = run(root, x, n, B_D, alpha, open_factor=open_factor)
-    got, v = run(cells, x, n, B_D, alpha, open_factor=open_factor)
+    assert cells.cells.listed_cells > 0 and cells.cells.entries > 0
+    got_root, v_root = run(root, x, n, B_D, alpha, open_factor=np.inf)
+    got, v = run(cells, x, n, B_D, alpha)
     scale = max(1.0, np.abs(got_root).max())
     np.testing.assert_allclose(got, got_root, atol=1e-6 * scale)
     assert v[:200].mean() < 0.7 * v_root[:200].mean()
-    if not np.isfinite(open_factor):
-        ref = correction_numpy(x, n, B_D, alpha, verts, tn, tB)
-        np.testing.assert_allclose(got, ref, atol=2e-5 * scale)
-    # another alpha: the lists do not apply, the walk starts from the root
-    got2, _ = run(cells, x, n, B_D, 0.3, open_factor=open_factor)
-    np.testing.assert_allclose(got2, run(root, x, n, B_D, 0.3, open_factor=open_factor)[0],
+    ref = correction_numpy(x, n, B_D, alpha, verts, tn, tB)
+    np.testing.assert_allclose(got, ref, atol=2e-5 * scale)
+    # the lanes away from the shading points walk from the root, with its open factor
+    away = slice(300, 350)
+    np.testing.assert_allclose(got[away], run(root, x[away], n[away], B_D[away], alpha)[0],
                                atol=1e-6 * scale)
+    # another alpha: the lists do not apply, the walk starts from the root
+    got2, _ = run(cells, x, n, B_D, 0.3, open_factor=4.0)
+    np.testing.assert_allclose(got2, run(root, x, n, B_D, 0.3, open_factor=4.0)[0],
+                               atol=1e-6 * scale)
+
+
+def test_cell_leaf_lists_hold_every_leaf_a_point_of_the_cell_may_count():
+    """Every (point, triangle) pair that counts (centroid within alpha, point in front) for a
+    point in a listed cell has the triangle in that cell's list."""
+    rng = np.random.default_rng(3)
+    verts, tn, tB, _, _, _ = random_case(rng, T=150, P=1)
+    pts = rng.uniform(-1, 1, (300, 3))
+    alpha = 0.4
+    nf = build_near_field(verts, tn, tB, points=pts, alpha=alpha, cell_size=0.2)
+    lc = nf.cells
+    x = pts + rng.normal(0, 0.1, pts.shape)
+    ijk = np.floor((x - lc.lo) / lc.cell).astype(np.int64)
+    inside = np.all((ijk >= 0) & (ijk < lc.res), axis=1)
+    cid = (ijk[:, 0] * lc.res[1] + ijk[:, 1]) * lc.res[2] + ijk[:, 2]
+    centroid = nf.verts.mean(axis=1)
+    checked = 0
+    for i in np.flatnonzero(inside):
+        c = cid[i]
+        if lc.count[c] == 0:
+            continue
+        listed = set(nf.tri[lc.leaves[lc.first[c]:lc.first[c] + lc.count[c]]].tolist())
+        near = np.linalg.norm(centroid - x[i], axis=1) <= alpha
+        front = ((x[i] - nf.verts[:, 0]) * nf.tri_normal).sum(axis=1) > 1e-4 * alpha
+        need = set(np.flatnonzero(near & front).tolist())
+        assert need <= listed
+        checked += len(need)
+    assert checked > 100
 
 
 def test_node_bounds_hold_every_vertex_and_centroid():
