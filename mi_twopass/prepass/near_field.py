@@ -410,7 +410,7 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     smaller of the children's spheres grown to the node's centre and the box's half-diagonal —
     upper bounds, exact at the leaves, so the walk's culling stays conservative.
 
-    With shading ``points`` (n, 3) and ``alpha``, also the per-cell start lists of the walk
+    With shading ``points`` (n, 3) and ``alpha``, also the per-cell leaf lists of the cache reads
     (:class:`LeafCells`, cells of ``cell_size``, default ``alpha``/2)."""
     verts = np.asarray(verts, dtype=np.float64).reshape(-1, 3, 3)
     tri_normal = np.asarray(tri_normal, dtype=np.float64).reshape(-1, 3)
