@@ -343,14 +343,16 @@ class LeafCells:
 
 def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
     """The (leaf rank, cell id) pairs of :meth:`LeafCells.build`, in leaf order: one Dr.Jit
-    kernel over every leaf and every cell of the cube of cells that holds the box of half-side
-    alpha + margin about its centroid (one more cell on each side than that box needs, against
-    float32 rounding), kept where the cell is ``occupied``, its box (grown by ``margin``)
-    within ``alpha`` of the centroid and partly in front of the triangle. Sizes and constants
-    are opaque: no kernel per scene."""
+    kernel over every leaf and every cell of the cube of cells that meets the box of half-side
+    alpha + margin about its centroid, kept where the cell is ``occupied``, its box (grown by
+    ``margin``) within ``alpha`` of the centroid and partly in front of the triangle. Sizes and
+    constants are opaque: no kernel per scene."""
     L = len(leaves)
     reach = alpha + margin
-    span = (np.ceil(2.0 * reach / cell) + 3).astype(np.int64)
+    # the cells that meet [c - reach, c + reach] along an axis: from floor((c - reach - lo)/cell)
+    # on, at most floor(2 reach / cell) + 2 of them (a cell that meets the box only at its edge,
+    # a rounding away, lies reach > alpha from c: the test below drops it)
+    span = (np.floor(2.0 * reach / cell) + 2).astype(np.int64)
     K = int(np.prod(span))
     if L == 0 or L * K >= 1 << 31:
         raise ValueError(f"near field: {L} leaves x {K} cells each is too many for the lists")
@@ -370,7 +372,7 @@ def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
         o = idx - li * K_o
         off = mi.Vector3i(mi.Int32(o // (sy * sz)), mi.Int32((o // sz) % sy), mi.Int32(o % sz))
         c = dr.gather(mi.Point3f, cc_t, li)
-        q = mi.Vector3i(dr.floor((c - reach_o - lo_o) / cell_o)) - 1 + off
+        q = mi.Vector3i(dr.floor((c - reach_o - lo_o) / cell_o)) + off
         inside = dr.all((q >= 0) & (q < res_o))
         cid = mi.UInt32((q.x * res_o.y + q.y) * res_o.z + q.z)
         return li, c, q, inside, cid
