@@ -388,6 +388,8 @@ def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
     front = dr.dot(nt, dr.select(nt > 0, bhi, blo)) - dr.dot(nt, a)
     keep = ok & (dmin <= alpha_o) & (front > FRONT_EPS * alpha_o)
     sel = dr.compress(keep)
+    if dr.width(sel) == 0:  # no leaf near any listed cell (a black scene, say)
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     li, _, _, _, cid = pair(sel)
     return np.asarray(li).astype(np.int64), np.asarray(cid).astype(np.int64)
 

@@ -305,3 +305,15 @@ def test_node_bounds_hold_every_vertex_and_centroid():
             np.testing.assert_allclose(nf.radius[node],
                                        np.linalg.norm(v - nf.center[node], axis=1).max())
             assert nf.cradius[node] == 0.0
+
+
+def test_cell_lists_with_no_leaf_in_reach_are_empty_and_the_walk_still_runs():
+    """Shading points far from every triangle: no cell lists a leaf, and every lane walks from
+    the root (B_C = 0 there: no centroid within alpha)."""
+    verts = grid_plane(4)
+    tn = normals_of(verts)
+    pts = np.array([[10.0, 10.0, 10.0], [10.2, 10.0, 10.0]])
+    nf = build_near_field(verts, tn, np.ones((len(verts), 3)), points=pts, alpha=0.3)
+    assert nf.cells.entries == 0
+    got, _ = run(nf, pts, np.tile([0.0, 0.0, -1.0], (2, 1)), np.zeros((2, 3)), 0.3)
+    assert np.all(got == 0)
