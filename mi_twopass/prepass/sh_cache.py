@@ -117,9 +117,10 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     nrm = dr.zeros(mi.Vector3f, w * h)
     eps = 1e-5 * scene_diagonal(scene)
     rays = 0
+    n_active = w * h
     lambertian = LambertianShapes(scene)
     for _ in range(MAX_DELTA_BOUNCES):  # a few bounces over the whole batch, not per lane
-        rays += _count(active)
+        rays += n_active
         si = scene.ray_intersect(ray, active)
         active &= si.is_valid()
         bsdf = si.bsdf(ray)
@@ -135,7 +136,8 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
         d = si.to_world(bs.wo)
         side = dr.select(dr.dot(si.n, d) >= 0, 1.0, -1.0)
         ray = mi.Ray3f(si.p + si.n * (side * (eps + 1e-6 * dr.max(dr.abs(si.p)))), d)
-        if _count(active) == 0:
+        n_active = _count(active)  # one evaluation per bounce: the rays of the next one
+        if n_active == 0:
             break
     keep = np.asarray(found)
     P, N = columns(p)[keep], columns(nrm)[keep]
