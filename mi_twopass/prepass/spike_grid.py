@@ -558,8 +558,9 @@ def camera_points(scene, sensor=None, res=64, seed=0, max_delta=8):
     T = dr.zeros(mi.Bool, n)  # transmissive: a receiver on both sides
     active = dr.full(mi.Bool, True, n)
     rays = 0
+    n_active = n
     for _ in range(max_delta + 1):  # bounce depth, each a wavefront over all rays
-        rays += int(dr.count(active)[0])
+        rays += n_active
         si = scene.ray_intersect(ray, active)
         valid = active & si.is_valid()
         bsdf = si.bsdf(ray)
@@ -575,7 +576,8 @@ def camera_points(scene, sensor=None, res=64, seed=0, max_delta=8):
         ray = si.spawn_ray(si.to_world(bs.wo))
         active = valid & ~smooth & (bs.pdf > 0)
         dr.eval(P, Nrm, T, found, ray, active)
-        if int(dr.count(active)[0]) == 0:
+        n_active = int(dr.count(active)[0])  # the rays of the next bounce
+        if n_active == 0:
             break
     keep = np.array(found, dtype=bool)
     return _both_sides(_np3(P)[keep], _np3(Nrm)[keep], np.array(T, dtype=bool)[keep]) + (rays,)
