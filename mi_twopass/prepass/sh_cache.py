@@ -136,7 +136,10 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
         d = si.to_world(bs.wo)
         side = dr.select(dr.dot(si.n, d) >= 0, 1.0, -1.0)
         ray = mi.Ray3f(si.p + si.n * (side * (eps + 1e-6 * dr.max(dr.abs(si.p)))), d)
-        n_active = _count(active)  # one evaluation per bounce: the rays of the next one
+        # one evaluation per bounce, of all the state: unevaluated, the next bounce's kernel
+        # would trace this one's rays again (veach-bidir's 16 bounces: 0.21 s, now 0.04 s)
+        dr.eval(p, nrm, found, ray, active)
+        n_active = _count(active)  # the rays of the next bounce
         if n_active == 0:
             break
     keep = np.asarray(found)
