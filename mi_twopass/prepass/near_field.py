@@ -171,8 +171,7 @@ class NearField:
             tri = dr.gather(mi.UInt32, t["tri"], node, active)
             d = dr.norm(c - x)
             visits += 1
-            # no centroid within alpha, or the node's box on or below the tangent plane: F = 0
-            miss = (dr.norm(cc - x) > alpha + cr) | (dr.dot(n, c - x) + dr.dot(abs_n, h) <= 0)
+            miss = _culled(x, n, abs_n, c, h, cc, alpha + cr)
             is_leaf = tri != 0xFFFFFFFF
             as_disk = active & ~miss & ~is_leaf & (d > of * r)
             leaf = active & ~miss & is_leaf
@@ -212,7 +211,7 @@ class NearField:
             cc = dr.gather(mi.Point3f, t["ccenter"], node, active)
             tri = dr.gather(mi.UInt32, t["tri"], node, active)
             visits += 1
-            miss = (dr.norm(cc - x) > alpha) | (dr.dot(n, c - x) + dr.dot(abs_n, h) <= 0)
+            miss = _culled(x, n, abs_n, c, h, cc, alpha)  # a leaf: its centroid sphere is 0
             B_C += self._leaf_term(x, B_D, L_F, n, tri, cc, alpha, active & ~miss)
             j += 1
             active &= j < stop
@@ -392,6 +391,14 @@ def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     li, _, _, _, cid = pair(sel)
     return np.asarray(li).astype(np.int64), np.asarray(cid).astype(np.int64)
+
+
+def _culled(x, n, abs_n, c, h, cc, reach):
+    """The walk's cull test of a node (box centre ``c``, half-extent ``h``, centroid sphere
+    centre ``cc``) at x with normal n (``abs_n`` = |n|): no triangle centroid within ``reach``
+    (alpha plus the centroid sphere's radius), or the box on or below the tangent plane, where
+    every form factor is 0. The root walk and the cell lists' leaves share it."""
+    return (dr.norm(cc - x) > reach) | (dr.dot(n, c - x) + dr.dot(abs_n, h) <= 0)
 
 
 def _far(B_D, L_F, d):
