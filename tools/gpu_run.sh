@@ -20,7 +20,11 @@
 # BUDGET (s per integrator and scene, default 2), RES (default 256), REF_SPP (default 2048),
 # SWEEP_SIZES (e.g. 256,512: run `bench --sweep` on its default scenes; default none),
 # SWEEP_BUDGET and SWEEP_REF_SPP (given at 128², default 1 and 8192), SWEEP_TIMEOUT (s, default
-# 270), VARIANT (default cuda_ad_rgb), MI_TWOPASS_GIT_COMMIT (the commit the copy holds).
+# 270), VARIANT (default cuda_ad_rgb), MI_TWOPASS_GIT_COMMIT (the commit the copy holds),
+# INTEGRATORS (the bench's --integrators, default all), PROBE (1: tools/probe_check.py over the
+# corpus and the scenes given before the bench, writing probe.log; default 0), PROBE_SPP
+# (default 8,64), PROBE_SETTINGS (twopass's path_probe columns, default auto), PROBE_TIMEOUT
+# (s, default 150).
 set -u
 cd "$(dirname "$0")/.."
 OUT=${OUT:-out/gpu}
@@ -42,6 +46,12 @@ if [ "${CHECK:-1}" = 1 ]; then
         | tee "$OUT/check.log"
 fi
 
+if [ "${PROBE:-0}" = 1 ]; then
+    timeout "${PROBE_TIMEOUT:-150}" python3 tools/probe_check.py scenes_xml/*.xml "$@" \
+        --res "${RES:-256}" --spp "${PROBE_SPP:-8,64}" --repeats 2 \
+        --settings "${PROBE_SETTINGS:-auto}" 2>&1 | tee "$OUT/probe.log"
+fi
+
 scenes=()
 if [ "${CORPUS:-1}" = 1 ]; then
     scenes=(scenes_xml/many_lights.xml scenes_xml/caustic.xml scenes_xml/window_interior.xml
@@ -53,6 +63,7 @@ BENCH=/tmp/gpubench
 rm -rf "$BENCH"
 timeout "${BENCH_TIMEOUT:-330}" python3 -m mi_twopass bench --variant "$MI_TWOPASS_VARIANT" \
     --res "${RES:-256}" --ref-spp "${REF_SPP:-2048}" --budget "${BUDGET:-2}" -o "$BENCH" \
+    ${INTEGRATORS:+--integrators "$INTEGRATORS"} \
     "${scenes[@]}" 2>&1 | tee "$OUT/bench.log"
 
 tar czf "$OUT/bench_data.tgz" -C "$BENCH" --exclude='*_images.png' .

@@ -9,13 +9,16 @@ from __future__ import annotations
 import math
 import time
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
 from ..evaluation.metrics import BLOCK
 from ..scene.lambertian import is_lambertian
 from . import cost
 from .pilot import (RUNS, PilotSettings, choose_blocks, choose_pixels, path_reference, pilot,
-                    pilot_samples, pixel_means, relative_variance, run_samples, samples_array)
+                    pilot_samples, pixel_means, probe_render, relative_variance, run_samples,
+                    samples_array)
 
 
 class Choice:
@@ -35,6 +38,8 @@ _CANDIDATE_SEEDS = 16
 _CHECK_SEEDS = 64
 _TWIN_SEED = 0x7717
 _FROZEN_SEEDS = 96
+#: seed offset of the render that times path before the pilot (:func:`probe_render`)
+_PROBE_SEED = 128
 
 
 def candidate_estimator(integ):
@@ -173,8 +178,14 @@ def traits(scene, max_depth) -> cost.SceneTraits:
                             max_depth=max_depth)
 
 
+def backend_name() -> str:
+    """"cuda" or "llvm": the JIT backend of the variant set."""
+    return "cuda" if dr.backend_v(mi.Float) == dr.JitBackend.CUDA else "llvm"
+
+
 def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
-           settings: PilotSettings, budget_factor: float, max_depth: int) -> Choice:
+           settings: PilotSettings, budget_factor: float, max_depth: int,
+           probe: str = "auto") -> Choice:
     """``twopass``'s prepass: the pilot, then the structures that may pay, and the composition
     with the lowest predicted relMSE × seconds (:mod:`mi_twopass.compose.cost`).
 
@@ -187,7 +198,10 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     1. nothing to measure when one row is allowed: build it;
     2. no pilot where it would cost more than :data:`cost.PILOT_SHARE_MAX` of the render
        (:func:`cost.pilot_too_dear`) or no prepass can fit the largest budget a candidate may
-       get (:func:`cost.none_fit`, :func:`cost.largest_budget`);
+       get (:func:`cost.none_fit`, :func:`cost.largest_budget`); where path's render is
+       probed first (``probe``: :func:`cost.probe_wanted`), the same two gates in its
+       measured seconds (:func:`cost.too_dear_in_seconds`), whose render time then sets the
+       budgets;
     3. the pilot path trace, split into direct, caustic and indirect variance;
     4. per row, cheapest best case first: skipped for a structural reason, a best case that
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
@@ -213,6 +227,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     film_pixels = pixels.film_pixels
     path_row = cost.COMPOSITIONS[0]
     path_integ = candidate(path_row)
+    probed = None
     if path_row in allowed:
         # no pilot where it would cost too large a share of the render (all that is lost
         # where nothing pays), nor where no prepass can fit the largest budget a candidate
@@ -228,12 +243,17 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         too_big = {c.name: dear for c in prepassed} if dear is not None else cost.none_fit(
             {c.name: cost.least_light_paths(candidate(c)) for c in others or prepassed},
             path_samples, cost.largest_budget(budget_factor))
+        if too_big is None and cost.probe_wanted(backend_name(), probe):
+            probed = probe_render(scene, sensor, path_integ, seed + _PROBE_SEED)
+            dear = cost.too_dear_in_seconds(probed, spp, pilot_samples(settings, pixels),
+                                            film_pixels, len(RUNS) + 1, budget_factor)
+            too_big = {c.name: dear for c in prepassed} if dear is not None else None
         if too_big is not None and others:
             for c in prepassed:
                 too_big.setdefault(c.name, "no pilot: rexes cut to the budget do not start "
                                            "a pilot where no other prepass fits")
         if too_big is not None:
-            decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big)
+            decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big, probe=probed)
             return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
                                                   "prepasses": 0.0})
     parts_out = []
@@ -252,7 +272,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
                            variance=variance.total, bias2=0.0, mean_ratio=1.0)
     runs = {}
     measured = {}
-    decision = cost.Decision(chosen=path_row, spp=spp)
+    decision = cost.Decision(chosen=path_row, spp=spp, probe=probed)
     if path_row in allowed:
         measured[path_row.name] = path_m
         runs[path_row.name] = (path_row, path_integ, path_run)
@@ -262,7 +282,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     for c in others:
         decision.best_case[c.name] = cost.best_case_score(variance, path_m, c, spp)
     best = min((m.score(spp) for m in measured.values()), default=float("inf"))
-    path_seconds = spp * path_m.seconds_per_spp
+    # the render as probed where it was (fixed part included), else as the pilot predicts it
+    path_seconds = probed.seconds(spp) if probed is not None else spp * path_m.seconds_per_spp
     for c in sorted(others, key=lambda c: decision.best_case[c.name]):
         # the break-even budget for the first structure only: once one is measured, the
         # others' best cases (near 0 for a composition that serves every part) promise
@@ -365,5 +386,5 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
                                              "prepasses": build_seconds})
 
 
-__all__ = ["Choice", "candidate_estimator", "check_bias", "choose", "fit_frozen",
+__all__ = ["Choice", "backend_name", "candidate_estimator", "check_bias", "choose", "fit_frozen",
            "path_sum_estimator", "traits"]

@@ -349,6 +349,63 @@ def pilot_too_dear(pilot_samples: int, path_samples: int, pilot_share: float = P
             f"{share:.3g} x the render's {path_samples} path samples")
 
 
+@dataclass(frozen=True)
+class RenderProbe:
+    """``path``'s render time on this device, from one timed render of the whole film at one
+    sample per pixel (:func:`mi_twopass.compose.pilot.probe_render`): ``per_spp``, its kernels'
+    own execution time, grows with the samples; ``fixed``, the rest of the call (recording
+    the loop, launching, developing the film, copying the image back), does not."""
+
+    fixed: float
+    per_spp: float
+
+    def seconds(self, spp: int) -> float:
+        """Predicted seconds of a render of ``spp`` samples per pixel."""
+        return self.fixed + spp * self.per_spp
+
+
+def probe_wanted(backend: str, setting: str = "auto") -> bool:
+    """Whether ``twopass`` times ``path``'s render (:class:`RenderProbe`) before its pilot:
+    ``setting`` "on" / "off", or "auto": on the CUDA backend only.
+
+    On two CPU cores (LLVM) the pilot's samples and the prepasses' light paths cost about
+    what path samples cost (:data:`PREPASS_FLOOR_FACTOR`, measured there), so the gates before
+    the pilot read sample counts (:func:`pilot_too_dear`, :func:`none_fit`) and a probe would
+    only add 1/spp of path's render to every twopass render (the office at 256²: 0.17 s, a
+    sixth of twopass's time to relMSE 0.01). On a GPU they do not: an H200 rendered path
+    19–61× faster than two CPU cores where the prepasses ran 1–2× faster and the pilot took
+    0.2–0.35 s of host time for a 0.055 s render (docs/results/gpu-2026-11-27), and path's
+    render there is mostly a fixed part (the office at 256²: 11.5 ms at 1 spp, 16.2 ms at 8)."""
+    if setting != "auto":
+        return setting == "on"
+    return backend == "cuda"
+
+
+def too_dear_in_seconds(probe: RenderProbe, spp: int, pilot_lanes: int, film_pixels: int,
+                        pilot_calls: int, pilot_share: float = PILOT_BUDGET):
+    """Before any pilot, from path's measured render time P = ``probe.seconds(spp)``: a reason
+    to render path with no pilot, else None. The path pilot costs at least ``pilot_calls`` ×
+    the render's fixed part plus its ``pilot_lanes`` samples at the render's cost per sample
+    (pilot_lanes / film_pixels × per_spp). No pilot where that floor is more than
+    :data:`PILOT_SHARE_MAX` × P (in proportion to ``pilot_share``, as :func:`pilot_too_dear`),
+    nor where it and the least prepass, :data:`PREPASS_LEAST_SECONDS`, do not fit the largest
+    budget a candidate may get (:func:`largest_budget`) × P, as :func:`none_fit` in samples."""
+    render = probe.seconds(spp)
+    floor = pilot_calls * probe.fixed + pilot_lanes / max(film_pixels, 1) * probe.per_spp
+    share = PILOT_SHARE_MAX * pilot_share / PILOT_BUDGET
+    if floor > share * render:
+        return (f"no pilot: path's render is predicted to take {render:.3g} s (probe: "
+                f"{probe.fixed:.3g} s + {spp} x {probe.per_spp:.3g} s), and the pilot at least "
+                f"{floor:.3g} s, more than {share:.3g} x that")
+    room = largest_budget(pilot_share) * render
+    if floor + PREPASS_LEAST_SECONDS > room:
+        return (f"no pilot: path's render is predicted to take {render:.3g} s (probe: "
+                f"{probe.fixed:.3g} s + {spp} x {probe.per_spp:.3g} s); the pilot's "
+                f"{floor:.3g} s and the least prepass, {PREPASS_LEAST_SECONDS:g} s, do not fit "
+                f"the largest budget, {room:.3g} s")
+    return None
+
+
 def prepass_budget(best_case: float, path_score: float, pilot_share: float) -> float:
     """The share of path's predicted render time P = N·t_p that the pilot and the prepasses
     may have spent, a candidate's own included, when its prepass is started.
@@ -536,6 +593,8 @@ class Decision:
     #: measured and, where it was above :func:`frozen_limit`, as predicted for the light paths
     #: built in its place (:func:`frozen_error`)
     frozen: dict = field(default_factory=dict)
+    #: path's render time as probed before the pilot (:class:`RenderProbe`); None: no probe
+    probe: RenderProbe | None = None
 
     def reason(self) -> str:
         if self.chosen.name not in self.measured:  # forced, or no prepass could fit

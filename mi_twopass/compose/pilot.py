@@ -40,6 +40,7 @@ import numpy as np
 
 from ..evaluation.metrics import RELMSE_EPS
 from ..seeds import hash31
+from .cost import RenderProbe
 
 #: salt of the pilot's sampler streams (mi_twopass.seeds)
 _SALT_PILOT = 0x5117
@@ -180,6 +181,30 @@ def pilot(scene, sensor, pixels: PilotPixels, settings: PilotSettings, estimator
     return PilotRun(values=np.concatenate([v for v, _ in runs], axis=1),
                     seconds_per_lane=per_lane, seconds=sum(t for _, t in runs[1:]) + fixed,
                     lanes=pilot_samples(settings, pixels))
+
+
+def probe_render(scene, sensor, integ, seed: int):
+    """``integ``'s render of the whole film at one sample per pixel, timed to the image on the
+    host → :class:`mi_twopass.compose.cost.RenderProbe`.
+
+    Dr.Jit's kernel history splits the call's seconds: its kernels' compilation (codegen and
+    backend time, paid once per process and kernel cache, not per render) is taken off; their
+    execution time is the part that grows with the samples per pixel (an upper bound of it:
+    one sample per pixel fills a GPU least); the rest, recording the loop, launching, the
+    film's development and the copy back, is the fixed part."""
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()  # reading it clears it
+        t0 = time.perf_counter()
+        image = integ.render(scene, sensor, seed=seed, spp=1)
+        np.asarray(image)  # waits for the kernels
+        wall = time.perf_counter() - t0
+        history = dr.kernel_history()
+    compiling = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)
+                    for k in history) / 1000.0
+    executing = sum(k.get("execution_time", 0.0) for k in history) / 1000.0
+    work = max(wall - compiling, 0.0)
+    per_spp = min(executing, work)
+    return RenderProbe(fixed=work - per_spp, per_spp=per_spp)
 
 
 def relative_variance(values: np.ndarray, reference: np.ndarray, eps: float = RELMSE_EPS):

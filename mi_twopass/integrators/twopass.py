@@ -47,7 +47,11 @@ class TwoPassChooser(TwoPassIntegrator):
         0. no pilot (path renders) where its samples would be more than 15 % of the
            render's (in proportion to ``pilot_budget``) or no prepass's least cost fits
            path's predicted render time (the most the first candidate may spend):
-           :func:`mi_twopass.compose.cost.pilot_too_dear`, :func:`~mi_twopass.compose.cost.none_fit`
+           :func:`mi_twopass.compose.cost.pilot_too_dear`, :func:`~mi_twopass.compose.cost.none_fit`;
+           on a GPU, where the pilot and the prepasses are host work that path samples'
+           time does not predict, the same two tests in seconds, against path's render
+           timed at 1 spp (``path_probe``:
+           :func:`~mi_twopass.compose.cost.too_dear_in_seconds`)
         1. pilot path trace (``pilot_pixels`` pixels × 144 samples, Mitsuba's path estimator)
            with its light split into direct, caustic (L S+ D ...) and other indirect parts,
            each part's relative variance measured
@@ -80,7 +84,8 @@ class TwoPassChooser(TwoPassIntegrator):
     (per candidate built: prepass seconds, seconds per spp, relative variance, bias², score),
     ``twopass_skipped`` (per composition not built: why), ``twopass_bias_checks`` (per
     candidate tested again: samples per pixel, b², its standard error, outcome),
-    ``pilot_seconds`` (the pilot and the tests) and
+    ``twopass_probe`` (path's render time as probed: fixed part, seconds per spp, the
+    render's; None where not probed), ``pilot_seconds`` (the probe, the pilot and the tests) and
     ``prepass_seconds`` (the pilot and every prepass built, the chosen one's included).
 
     .. pluginparameters::
@@ -107,6 +112,12 @@ class TwoPassChooser(TwoPassIntegrator):
          0.25; a candidate whose best case is far ahead of path may spend more, up to that
          whole time; 0: path only, unless a choice is forced). The pilot starts only where
          its samples are at most 0.6 × this share of the render's (15 % at the default).
+     * - path_probe
+       - |string|
+       - "auto" (default: on the CUDA backend only), "on" or "off": time ``path``'s render of
+         the film at 1 spp before the pilot, and skip the pilot where it and the least
+         prepass (0.15 s) do not fit the time path is predicted to take
+         (:func:`mi_twopass.compose.cost.probe_wanted`).
      * - debug
        - |string|
        - "none"; "direct_technique" colours the first non-delta hit orange where a spike list
@@ -130,6 +141,7 @@ class TwoPassChooser(TwoPassIntegrator):
             pixels=read_int(props, "pilot_pixels", 1024, minimum=16, maximum=65536,
                             why="pilot pixels: each costs 144 samples per candidate"))
         self.pilot_budget = read_float(props, "pilot_budget", cost.PILOT_BUDGET, minimum=0.0)
+        self.path_probe = read_choice(props, "path_probe", AUTO, (AUTO, "on", "off"))
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self._candidates = {}  # plugin name+props -> integrator, kept so prepasses are reused
         # radiosity solves the candidates share within one prepass (radiosity.build's memo)
@@ -141,7 +153,7 @@ class TwoPassChooser(TwoPassIntegrator):
 
     def settings(self):
         return (tuple(sorted(self.forced.items(), key=lambda kv: kv[0])), self.pilot_settings,
-                self.pilot_budget, self._render_spp)
+                self.pilot_budget, self.path_probe, self._render_spp)
 
     # -- candidates -------------------------------------------------------------------------
     def _common_props(self) -> dict:
@@ -179,7 +191,7 @@ class TwoPassChooser(TwoPassIntegrator):
         try:
             return choose(scene, self.prepass_sensor, seed, self._render_spp, self.allowed,
                           self.candidate, self.pilot_settings, self.pilot_budget,
-                          self.max_depth)
+                          self.max_depth, self.path_probe)
         finally:
             self._radiosity_memo.clear()  # the chosen candidate keeps its own structure
 
@@ -206,6 +218,9 @@ class TwoPassChooser(TwoPassIntegrator):
                                          "standard_error": se, "outcome": why}
                                         for k, b2, se, why in checks]
                                     for n, checks in d.bias_checks.items()},
+            "twopass_probe": None if d.probe is None else {
+                "fixed_seconds": d.probe.fixed, "seconds_per_spp": d.probe.per_spp,
+                "render_seconds": d.probe.seconds(d.spp)},
             "pilot_seconds": choice.seconds["pilot"],
         }
 

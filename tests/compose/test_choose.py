@@ -166,3 +166,36 @@ def test_no_prepass_is_measured_or_built_where_not_even_the_least_one_fits(monke
     assert "a prepass of at least inf s" in choice.decision.skipped[rex_row.name]
     assert choice.decision.chosen == cost.COMPOSITIONS[0]
     assert set(choice.decision.measured) == {cost.COMPOSITIONS[0].name}
+
+
+def test_where_the_probe_finds_paths_render_shorter_than_any_prepass_no_pilot_runs(monkeypatch):
+    # the probe forced on, with made-up figures: a render of 0.018 s (a GPU's fixed 11 ms and
+    # a tiny cost per sample) leaves no room for a pilot and a prepass: path, no pilot, the
+    # probe in the decision; 0.5 s per spp leaves room, and the pilot runs. The spike row
+    # (one emitter here) is skipped before it is built, so nothing else is built
+    import mi_twopass.compose.choose as choose_module
+
+    scene = mi.load_dict(hs.box())
+    tp = chooser()
+    spike = next(c for c in cost.COMPOSITIONS if c.plugin == "spike_gather")
+    allowed = [cost.COMPOSITIONS[0], spike]
+    calls = []
+
+    def run(figures, probe="on"):
+        def fake(scene, sensor, integ, seed):
+            calls.append(seed)
+            return figures
+        monkeypatch.setattr(choose_module, "probe_render", fake)
+        return choose(scene, scene.sensors()[0], 0, SPP, allowed, tp.candidate,
+                      PilotSettings(pixels=64), cost.PILOT_BUDGET, tp.max_depth, probe=probe)
+
+    short = cost.RenderProbe(fixed=0.011, per_spp=1e-7)
+    d = run(short).decision
+    assert len(calls) == 1 and d.probe == short and d.chosen == cost.COMPOSITIONS[0]
+    assert not d.measured and all(v.startswith("no pilot: path's render is predicted")
+                                  for v in d.skipped.values())
+    d = run(cost.RenderProbe(fixed=0.001, per_spp=0.5)).decision
+    assert cost.COMPOSITIONS[0].name in d.measured and d.probe is not None  # the pilot ran
+    calls.clear()
+    d = run(short, probe="off").decision  # "off" (and "auto" on the CPU): no probe
+    assert not calls and d.probe is None and cost.COMPOSITIONS[0].name in d.measured

@@ -229,3 +229,31 @@ def test_a_prepass_own_noise_counts_as_an_error_no_sample_removes():
     assert m.predicted_error(10**9) == pytest.approx(0.002, rel=1e-6)
     m.bias2 = 0.003  # a bias found against path holds the frozen noise too: the larger counts
     assert m.predicted_error(10**9) == pytest.approx(0.003, rel=1e-6)
+
+
+def test_the_probe_is_wanted_on_a_gpu_only_unless_forced():
+    assert cost.probe_wanted("cuda") and not cost.probe_wanted("llvm")
+    assert cost.probe_wanted("llvm", "on") and not cost.probe_wanted("cuda", "off")
+
+
+def test_the_seconds_gate_skips_the_pilot_where_paths_render_is_shorter_than_any_prepass():
+    """The office at 256² on an H200 (session 13's bench): path took 11.5 ms at 1 spp and
+    16.2 ms at 8, about 11 ms fixed and 0.7 ms per spp. Its 32-spp render, ~0.03 s, is
+    shorter than the least prepass (PREPASS_LEAST_SECONDS) alone: no pilot. On two CPU cores
+    the same render takes ~0.17 s per spp and both fit."""
+    gpu = cost.RenderProbe(fixed=0.011, per_spp=0.0007)
+    assert gpu.seconds(32) == pytest.approx(0.011 + 32 * 0.0007)
+    pilot_lanes, film = 1024 * 144, 256 * 256
+    why = cost.too_dear_in_seconds(gpu, 32, pilot_lanes, film, 4)
+    assert why is not None and why.startswith("no pilot")
+    cpu = cost.RenderProbe(fixed=0.002, per_spp=0.17)
+    assert cost.too_dear_in_seconds(cpu, 32, pilot_lanes, film, 4) is None
+    # the pilot's own floor: 4 calls of the fixed part plus its lanes at the render's cost
+    # per lane; a fixed part of 0.5 s makes even a 1000-spp render too short for it
+    slow_calls = cost.RenderProbe(fixed=0.5, per_spp=0.001)
+    why = cost.too_dear_in_seconds(slow_calls, 1000, pilot_lanes, film, 4)
+    assert "the pilot at least 2" in why
+    # pilot_budget 0: path only; a larger pilot_budget lets the pilot start sooner
+    assert cost.too_dear_in_seconds(cpu, 32, pilot_lanes, film, 4, 0.0) is not None
+    long_gpu = 20000  # spp: 14 s of path on the GPU, room for pilot and prepasses
+    assert cost.too_dear_in_seconds(gpu, long_gpu, pilot_lanes, film, 4) is None

@@ -1,10 +1,16 @@
 """twopass's pilot (mi_twopass.compose.pilot): pixels, samples, variance and cost per sample."""
+import os
+import sys
+
 import mitsuba as mi
 import numpy as np
 import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.compose import pilot as pl
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+import hard_scenes as hs  # noqa: E402
 
 
 def test_pixels_are_distinct_and_the_whole_film_when_it_is_small(tiny_scene_file):
@@ -93,3 +99,20 @@ def test_blocks_lie_on_checks_grid_inside_the_film_listed_block_by_block():
     assert len(pl.choose_blocks(sensor(44, 20), 100, 8, seed=1).index) == 10 * 64
     # a film smaller than a block: the whole film, one block
     assert np.array_equal(pl.choose_blocks(sensor(6, 5), 4, 8, 0).index, np.arange(30))
+
+
+def test_the_render_probe_splits_paths_time_into_a_fixed_part_and_one_per_sample():
+    """One timed 1-spp render, its kernels' compilation taken off: its prediction of a 16-spp
+    render is the right size (within 4x either way on a loaded 2-core machine)."""
+    import time
+
+    d = hs.box()
+    d["sensor"] = hs.sensor([0, 0, 3.5], [0, 0, 0], res=64)
+    scene = mi.load_dict(d)
+    integ = mi.load_dict({"type": "path", "max_depth": 6})
+    probe = pl.probe_render(scene, scene.sensors()[0], integ, 3)
+    assert probe.fixed >= 0.0 and probe.per_spp > 0.0
+    t0 = time.perf_counter()
+    np.asarray(integ.render(scene, spp=16, seed=5))
+    seconds = time.perf_counter() - t0
+    assert 0.25 * seconds < probe.seconds(16) < 4.0 * seconds
