@@ -1,5 +1,7 @@
 """The shared machinery of base.py: parameter readers, prepass reuse keyed on what the prepass
 depends on, max_depth = 0, and the error dr.backward gives."""
+import os
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -146,6 +148,40 @@ def test_fingerprint_sees_parameter_changes(cornell):
     params["light.emitter.radiance.value"] *= 1.0001
     params.update()
     assert base.parameter_fingerprint(cornell) != a
+
+
+def test_fingerprint_sees_each_kind_of_array_it_copies_in_one_batch():
+    """The 32-bit JIT arrays (floats, indices, a texture's tensor, a transform's matrix) are
+    copied to the host in one batch: a change of one of them changes the fingerprint, and
+    undoing it restores it."""
+    scene = mi.load_dict({
+        "type": "scene",
+        "tri": {"type": "obj", "filename": _tiny_obj()},
+        "rect": {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": {
+            "type": "bitmap", "data": mi.TensorXf(np.full((2, 2, 3), 0.5, np.float32))}}}})
+    params = mi.traverse(scene)
+    keys = {k: v for k, v in params.items()}
+    a = base.parameter_fingerprint(scene)
+    assert a == base.parameter_fingerprint(scene)
+    for key, change in (("tri.faces", lambda v: type(v)([0, 2, 1])),
+                        ("rect.bsdf.reflectance.data", lambda v: v * 1.5),
+                        ("rect.to_world", lambda v: mi.Transform4f().translate([0, 0, 1]) @ v)):
+        assert key in keys
+        old = type(params[key])(params[key])
+        params[key] = change(params[key])
+        params.update()
+        assert base.parameter_fingerprint(scene) != a, key
+        params[key] = old
+        params.update()
+        assert base.parameter_fingerprint(scene) == a, key
+
+
+def _tiny_obj():
+    import tempfile
+    path = os.path.join(tempfile.mkdtemp(), "tri.obj")
+    with open(path, "w") as f:
+        f.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    return path
 
 
 def test_emitter_change_rebuilds_a_real_prepass(cornell):
