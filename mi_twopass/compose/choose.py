@@ -107,14 +107,19 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
 
 
 def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: float,
-               path_m, film_pixels: int):
+               path_m, film_pixels: int, build_seconds: float = 0.0):
     """A candidate whose rexes twopass cut to fewer photons than the image needs
     (``decision.fitted``), checked for the noise of its own photons, which no number of
     samples per pixel removes and the path pilot, as noisy as path is where rexes pay, cannot
     resolve: a twin is built with another seed and both are sampled on the same blocks
-    (:func:`cost.frozen_error`). Where the block relMSE that noise leaves is above
+    (:func:`cost.frozen_error`).
+
+    The twin gets more photons where the ``room`` left in the candidate's budget pays for
+    them at the first build's measured ``build_seconds`` (:func:`cost.twin_photons`, up to
+    :data:`cost.FROZEN_TWIN_GROWTH` ×); it is then the build kept, its noise read from the
+    pair (:func:`cost.frozen_of_larger`). Where the block relMSE its noise leaves is above
     :func:`cost.frozen_limit`, the candidate is built again with the photons that bring it
-    there (:func:`cost.frozen_photons`) if the seconds ``room`` left in its budget pay for them
+    there (:func:`cost.frozen_photons`) if the seconds left pay for them
     (:func:`cost.light_paths_within`).
 
     Returns (integrator, Frozen as predicted for it, seconds the twin and any rebuild took),
@@ -122,17 +127,27 @@ def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: fl
     measurement or prediction is recorded in ``decision.frozen``."""
     photons, need = decision.fitted[c.name]
     t0 = time.perf_counter()
-    twin = candidate(c, photons=photons, twin=True)
-    twin.ensure_prepass(scene, seed + _TWIN_SEED, sensor)
+    more = cost.twin_photons(photons, need, build_seconds, room)
+    if more > photons:  # kept: its own seed offset, so the render's seed finds it built
+        twin = candidate(c, photons=more, seed_offset=_TWIN_SEED)
+        twin.ensure_prepass(scene, seed, sensor)
+    else:
+        twin = candidate(c, photons=photons, twin=True)
+        twin.ensure_prepass(scene, seed + _TWIN_SEED, sensor)
     blocks = choose_blocks(sensor, cost.FROZEN_BLOCKS, BLOCK, seed)
     a, _ = run_samples(scene, sensor, blocks, cost.FROZEN_SAMPLES, candidate_estimator(integ),
                        seed + _FROZEN_SEEDS)
     b, _ = run_samples(scene, sensor, blocks, cost.FROZEN_SAMPLES, candidate_estimator(twin),
                        seed + _FROZEN_SEEDS + 1)
-    del twin
     frozen = cost.frozen_error(a, b, min(BLOCK * BLOCK, len(blocks.index)))
     history = decision.frozen.setdefault(c.name, [])
     history.append((photons, frozen))
+    if more > photons:
+        integ, frozen = twin, cost.frozen_of_larger(frozen, more / photons)
+        photons = more
+        decision.fitted[c.name] = (photons, need)
+        history.append((photons, frozen))
+    del twin
     limit = cost.frozen_limit()
     want = cost.frozen_photons(photons, frozen, need)
     if want == photons:
@@ -348,7 +363,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         if c.name in decision.fitted:
             integ, frozen, more = fit_frozen(scene, sensor, c, integ, candidate, seed, decision,
                                              budget - (time.perf_counter() - t_start), path_m,
-                                             film_pixels)
+                                             film_pixels, seconds)
             build_seconds += more
             seconds += more
             if integ is None:

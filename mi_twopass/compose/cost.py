@@ -128,6 +128,14 @@ FROZEN_BLOCKS = 256
 FROZEN_SAMPLES = 8
 FROZEN_SHARE = 0.5
 FROZEN_DECAY = 0.5
+#: the second build of a cut rex gets up to this many times its photons, where the rest of the
+#: candidate's budget pays for them at the first build's measured seconds per photon
+#: (:func:`twin_photons`); it is then the build that renders. The twin's comparison sees the
+#: photons' noise and not the buckets' blur, which two builds of one photon count share: on
+#: caustic.xml at 256² (256 spp, 1.8 M photons, budget 0.25 x path's render) it predicted a
+#: persistent relMSE of 0.0036 where the harness read ~0.012 against a 16384-spp reference
+#: (docs/results/bench-2026-11-27g), so the cut was kept where more photons would have paid
+FROZEN_TWIN_GROWTH = 4
 
 DIRECT = ("emitter", "spike")
 INDIRECT = ("path", "radiosity", "cache", "rex")
@@ -525,6 +533,28 @@ def frozen_error(a: np.ndarray, b: np.ndarray, block_pixels: int) -> Frozen:
                      block_mean(va + vb) / (n * block_pixels))
     se = float(block.std(ddof=1) / math.sqrt(block.size)) if block.size > 1 else math.inf
     return Frozen(float(block.mean()), se, float(pixel.mean()))
+
+
+def twin_photons(photons: int, need: int, build_seconds: float, room: float) -> int:
+    """The photons of a cut rex's second build (:func:`mi_twopass.compose.choose.fit_frozen`):
+    up to :data:`FROZEN_TWIN_GROWTH` × ``photons`` and the image's ``need``, as many as the
+    ``room`` left in the candidate's budget pays for at the first build's ``build_seconds``
+    per ``photons`` (its fixed part counted per photon too: an upper bound of the cost); at
+    least ``photons`` (the twin then only measures the noise)."""
+    if photons <= 0 or build_seconds <= 0:
+        return int(photons)
+    affordable = int(photons * max(room, 0.0) / build_seconds)
+    return int(max(photons, min(need, FROZEN_TWIN_GROWTH * photons, affordable)))
+
+
+def frozen_of_larger(measured: Frozen, factor: float) -> Frozen:
+    """The noise of the larger of two builds, ``factor`` times the other's light paths, from
+    :func:`frozen_error` of the pair, which reads E[Δ²]/2 as if both were alike: with
+    σ_large² = ρ·σ_small², ρ = factor^−:data:`FROZEN_DECAY`, E[Δ²] = (1 + ρ)·σ_small², so
+    σ_large² = 2ρ / (1 + ρ) × the reading (1 for equal builds)."""
+    rho = max(factor, 1.0) ** -FROZEN_DECAY
+    k = 2.0 * rho / (1.0 + rho)
+    return Frozen(measured.block * k, measured.block_se * k, measured.pixel * k)
 
 
 def least_cut(need: int) -> int:

@@ -160,11 +160,14 @@ class TwoPassChooser(TwoPassIntegrator):
         return {"max_depth": self.max_depth, "rr_depth": self.rr_depth, "seed": self.seed,
                 "component": self.component}
 
-    def candidate(self, c: cost.Composition, photons: int = 0, twin: bool = False):
+    def candidate(self, c: cost.Composition, photons: int = 0, twin: bool = False,
+                  seed_offset: int = 0):
         """The integrator of composition ``c`` (built once per twopass object; ``photons`` > 0:
         its rexes with that many photons instead of the image's need; ``twin``: a new one,
-        not kept, for a second build of the same prepass with another seed)."""
-        key = (c.plugin, c.props, photons)
+        not kept, for a second build of the same prepass with another seed; ``seed_offset``:
+        its prepass seed offset by that much, so that its build is independent of one without
+        while the render's seed still finds it)."""
+        key = (c.plugin, c.props, photons, seed_offset)
         if twin and c.plugin != "path":
             extra = {"photons": int(photons)} if photons > 0 else {}
             return mi.load_dict({"type": c.plugin, **self._common_props(), **dict(c.props),
@@ -177,8 +180,10 @@ class TwoPassChooser(TwoPassIntegrator):
                 self._candidates[key] = ComponentPathIntegrator(props)
             else:
                 extra = {"photons": int(photons)} if photons > 0 else {}
+                props = self._common_props()
+                props["seed"] = (int(props["seed"]) + int(seed_offset)) % (1 << 31)
                 self._candidates[key] = mi.load_dict(
-                    {"type": c.plugin, **self._common_props(), **dict(c.props), **extra})
+                    {"type": c.plugin, **props, **dict(c.props), **extra})
                 self._candidates[key].radiosity_memo = self._radiosity_memo
         return self._candidates[key]
 

@@ -148,6 +148,43 @@ def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypa
     assert predicted.block < decision.frozen[rex_row.name][0][1].block
 
 
+def test_a_cut_rexs_twin_gets_the_photons_its_budget_pays_for_and_is_the_build_kept(monkeypatch):
+    """With room in its budget, the second build of a cut rex gets more photons (up to
+    FROZEN_TWIN_GROWTH x, at the first build's seconds per photon) and renders: its prepass
+    seed is offset, so the render's seed finds it built, and its noise is read from the pair
+    as the larger build's (frozen_of_larger). With no room it has the cut's photons."""
+    from mi_twopass.compose.choose import fit_frozen
+
+    scene = mi.load_dict(hs.box())
+    sensor = scene.sensors()[0]
+    tp = chooser()
+    rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
+    path_m = cost.Measured(0.0, 0.01, 1.0, 0.0, 1.0)
+    cut, need = 1 << 16, 1 << 20
+    monkeypatch.setattr(cost, "FROZEN_SHARE", 1e9)  # any noise is below the limit
+    decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
+    integ = tp.candidate(rex_row, photons=cut)
+    _, seconds = integ.ensure_prepass(scene, 0, sensor)
+    room = 2.5 * seconds  # pays for 2.5x the photons at the measured seconds per photon
+    assert abs(cost.twin_photons(cut, need, seconds, room) - cut * 2.5) <= 1
+    assert cost.twin_photons(cut, need, seconds, 1e9) == cost.FROZEN_TWIN_GROWTH * cut
+    assert cost.twin_photons(cut, 2 * cut, seconds, 1e9) == 2 * cut  # at most the need
+    kept, frozen, _ = fit_frozen(scene, sensor, rex_row, integ, tp.candidate, 0, decision,
+                                 1e9, path_m, 32 * 32, seconds)
+    more = cost.FROZEN_TWIN_GROWTH * cut
+    assert kept is not integ and kept.photons == more
+    assert decision.fitted[rex_row.name] == (more, need)
+    (n0, pair), (n1, larger) = decision.frozen[rex_row.name]
+    assert (n0, n1) == (cut, more) and larger is frozen
+    assert frozen.pixel == pytest.approx(pair.pixel * 2 * 0.5 / 1.5)  # rho = 4^-0.5
+    assert kept.ensure_prepass(scene, 0, sensor)[1] == 0.0  # the render's seed finds it
+    # no room: the twin has the cut's photons and only measures
+    decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
+    kept, _, _ = fit_frozen(scene, sensor, rex_row, integ, tp.candidate, 0, decision, 0.0,
+                            path_m, 32 * 32, seconds)
+    assert kept is integ and decision.fitted[rex_row.name] == (cut, need)
+
+
 def test_no_prepass_is_measured_or_built_where_not_even_the_least_one_fits(monkeypatch):
     # where the pilot leaves less than PREPASS_LEAST_SECONDS of the budget, a candidate is
     # skipped before its prepass's size is measured (rex's: a size pass and a probe shoot)
