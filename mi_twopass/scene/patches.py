@@ -41,6 +41,7 @@ means "no patch" and every Dr.Jit table has a zero entry at ``N`` so gathers nee
 """
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -251,20 +252,24 @@ def _choose_target_area(geoms, max_patches, origin):
 # Barycentric subdivision: n² sub-triangles of a triangle, indexed from (b1, b2) in O(1)
 
 
+@functools.lru_cache(maxsize=64)
 def _subtriangle_corners(n):
-    """Barycentric (b1, b2) corners (n², 3, 2) of the sub-triangles, in lookup order.
+    """Barycentric (b1, b2) corners (n², 3, 2) of the sub-triangles, in lookup order (read-only,
+    cached per n).
 
     Lower triangle (i, j), i + j ≤ n−1: (i, j), (i+1, j), (i, j+1), index rowoff(i) + j with
     rowoff(i) = i·n − i(i−1)/2. Upper triangle (i, j), i + j ≤ n−2: (i+1, j), (i+1, j+1), (i, j+1),
     index n(n+1)/2 + i·(n−1) − i(i−1)/2 + j. Both keep the winding of the parent triangle."""
-    corners = []
-    for i in range(n):
-        for j in range(n - i):
-            corners.append([(i, j), (i + 1, j), (i, j + 1)])
-    for i in range(n - 1):
-        for j in range(n - 1 - i):
-            corners.append([(i + 1, j), (i + 1, j + 1), (i, j + 1)])
-    return np.array(corners, dtype=np.float64) / n
+    k = np.arange(n)
+    i, j = np.nonzero(np.add.outer(k, k) <= n - 1)  # row-major: i, then j, as the index
+    iu, ju = np.nonzero(np.add.outer(k[:-1], k[:-1]) <= n - 2)
+    lower = np.stack([np.stack([i, j], -1), np.stack([i + 1, j], -1),
+                      np.stack([i, j + 1], -1)], axis=1)
+    upper = np.stack([np.stack([iu + 1, ju], -1), np.stack([iu + 1, ju + 1], -1),
+                      np.stack([iu, ju + 1], -1)], axis=1)
+    corners = np.concatenate([lower, upper]).astype(np.float64) / n
+    corners.setflags(write=False)
+    return corners
 
 
 def _subtriangle_index_np(b1, b2, n):
