@@ -63,7 +63,10 @@ class TwoPassChooser(TwoPassIntegrator):
            path's predicted render time: :func:`mi_twopass.compose.cost.prepass_budget`;
            for the others ``pilot_budget``), or where the scene gives it nothing (one
            emitter for spike lists, no Lambertian surface, a finite max_depth for a far
-           field); else build its prepass and pilot it on the same pixels
+           field); else build its prepass and pilot it on the same pixels (rexes cut below
+           the image's photon need are built twice, the second time with up to 4× the
+           photons the rest of their budget pays for, and that build renders; the pair
+           measures the photons' own noise: :func:`mi_twopass.compose.choose.fit_frozen`)
         3. take the candidate of least predicted relMSE × seconds, (S + N·t) × (v/N + b²),
            N the render's samples per pixel, S the seconds the pilot and the prepasses have
            taken (spent whichever renders), b² its squared relative bias against the path
