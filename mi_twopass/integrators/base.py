@@ -208,9 +208,10 @@ def parameter_fingerprint(obj, skip_camera=False) -> str:
     ``skip_camera`` the parameters of sensors, films, samplers and reconstruction filters are
     left out (for prepasses that do not look through the camera). Cost: one host copy and hash
     of every parameter array, ~1–2 ms per MB (README "Using it"). The 32-bit JIT arrays are
-    concatenated on the device and copied in one transfer: one copy per array cost a GPU
-    ~0.09 ms each, 44 ms on many_lights.xml's 494 parameters (twopass's whole overhead over
-    path there, on an H200, docs/results/gpu-2026-11-27b)."""
+    concatenated on the device and copied in one transfer. On many_lights.xml (494
+    parameters) the whole fingerprint takes 9 ms on two CPU cores and 13 ms on an H200,
+    mostly Python per parameter (``tools/twopass_overhead.py``, docs/results/gpu-2026-11-27b).
+    Copying each leaf array separately instead of ``dr.ravel`` cost more: 12 ms on the CPU."""
     camera_types = (mi.Sensor, mi.Film, mi.Sampler, mi.ReconstructionFilter)
     params = mi.traverse(obj)
     items = []  # (key, bytes) or (key, (header, UInt32 words on the device))
