@@ -193,6 +193,55 @@ def traits(scene, max_depth) -> cost.SceneTraits:
                             max_depth=max_depth)
 
 
+def _no_pilot(prepassed, reason: str) -> dict:
+    """{name: why} for every composition with a prepass, where a gate before the pilot said
+    ``reason`` (rexes, which no gate counts where another prepass could be built, say so)."""
+    return {c.name: reason for c in prepassed}
+
+
+def sample_gates(spp: int, pixels, allowed, candidate, settings: PilotSettings,
+                 budget_factor: float):
+    """The gates before any pilot that count samples, not seconds (path's cost per sample is
+    not known yet): ``{name: why}`` for every composition with a prepass where the render is
+    path with no pilot, else None. No pilot where its samples would cost too large a share of
+    the render's (:func:`cost.pilot_too_dear`: all that is lost where nothing pays), nor where
+    no prepass can fit the largest budget a candidate may get (:func:`cost.none_fit`). Rexes,
+    which can be cut to 2^16 photons, count only where nothing else could be built: alone they
+    would start a pilot at 32 spp of a 128² film, where its 147,456 samples cost more than any
+    rexes that small could save (the office's and window_interior's twopass fell to 0.93x and
+    0.84x path at 128²). Cheap: nothing is traced, so ``twopass`` asks before it computes its
+    prepass key."""
+    prepassed = [c for c in allowed if c.needs_prepass]
+    others = [c for c in prepassed if c.plugin != "rex"]
+    path_samples = spp * pixels.film_pixels
+    dear = cost.pilot_too_dear(pilot_samples(settings, pixels), path_samples, budget_factor)
+    if dear is not None:
+        return _no_pilot(prepassed, dear)
+    too_big = cost.none_fit(
+        {c.name: cost.least_light_paths(candidate(c)) for c in others or prepassed},
+        path_samples, cost.largest_budget(budget_factor))
+    if too_big is not None and others:
+        for c in prepassed:
+            too_big.setdefault(c.name, "no pilot: rexes cut to the budget do not start a "
+                                       "pilot where no other prepass fits")
+    return too_big
+
+
+def path_without_pilot(sensor, seed: int, spp: int, allowed, candidate,
+                       settings: PilotSettings, budget_factor: float):
+    """The :class:`Choice` of path with no pilot where :func:`sample_gates` says so (path
+    allowed, and some other composition too), else None. Traces nothing."""
+    path_row = cost.COMPOSITIONS[0]
+    if path_row not in allowed or len(allowed) < 2:
+        return None
+    pixels = choose_pixels(sensor, settings.pixels, seed)
+    too_big = sample_gates(spp, pixels, allowed, candidate, settings, budget_factor)
+    if too_big is None:
+        return None
+    decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big)
+    return Choice(decision, candidate(path_row), {"pilot": 0.0, "prepasses": 0.0})
+
+
 def backend_name() -> str:
     """"cuda" or "llvm": the JIT backend of the variant set."""
     return "cuda" if dr.backend_v(mi.Float) == dr.JitBackend.CUDA else "llvm"
@@ -238,35 +287,23 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         decision.skipped = {"pilot": "every choice forced from XML"}
         return Choice(decision, integ, {"pilot": 0.0, "prepasses": build_seconds})
 
+    early = path_without_pilot(sensor, seed, spp, allowed, candidate, settings, budget_factor)
+    if early is not None:
+        early.seconds["pilot"] = time.perf_counter() - t_start
+        return early
     pixels = choose_pixels(sensor, settings.pixels, seed)
     film_pixels = pixels.film_pixels
     path_row = cost.COMPOSITIONS[0]
     path_integ = candidate(path_row)
     probed = None
     if path_row in allowed:
-        # no pilot where it would cost too large a share of the render (all that is lost
-        # where nothing pays), nor where no prepass can fit the largest budget a candidate
-        # may get, whatever path's cost per sample; rexes, which can be cut to 2^16 photons,
-        # count only where nothing else could be built (alone they would start a pilot at
-        # 32 spp of a 128² film, where its 147,456 samples cost more than any rexes that
-        # small could save: the office's and window_interior's twopass fell to 0.93x and
-        # 0.84x path at 128²)
         prepassed = [c for c in allowed if c.needs_prepass]
-        others = [c for c in prepassed if c.plugin != "rex"]
-        path_samples = spp * film_pixels
-        dear = cost.pilot_too_dear(pilot_samples(settings, pixels), path_samples, budget_factor)
-        too_big = {c.name: dear for c in prepassed} if dear is not None else cost.none_fit(
-            {c.name: cost.least_light_paths(candidate(c)) for c in others or prepassed},
-            path_samples, cost.largest_budget(budget_factor))
-        if too_big is None and cost.probe_wanted(backend_name(), probe):
+        too_big = None
+        if cost.probe_wanted(backend_name(), probe):
             probed = probe_render(scene, sensor, path_integ, seed + _PROBE_SEED)
             dear = cost.too_dear_in_seconds(probed, spp, pilot_samples(settings, pixels),
                                             film_pixels, len(RUNS) + 1, budget_factor)
-            too_big = {c.name: dear for c in prepassed} if dear is not None else None
-        if too_big is not None and others:
-            for c in prepassed:
-                too_big.setdefault(c.name, "no pilot: rexes cut to the budget do not start "
-                                           "a pilot where no other prepass fits")
+            too_big = _no_pilot(prepassed, dear) if dear is not None else None
         if too_big is not None:
             decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big, probe=probed)
             return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
@@ -402,4 +439,4 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
 
 
 __all__ = ["Choice", "backend_name", "candidate_estimator", "check_bias", "choose", "fit_frozen",
-           "path_sum_estimator", "traits"]
+           "path_sum_estimator", "path_without_pilot", "sample_gates", "traits"]

@@ -181,6 +181,31 @@ def test_second_render_reuses_the_choice():
     assert tp.stats["prepass_seconds"] == 0.0
 
 
+def test_where_the_sample_gates_rule_out_the_pilot_no_prepass_key_is_computed(monkeypatch):
+    """A render too short for any pilot (4 spp of the small box) is path's, decided before the
+    prepass key, which would fingerprint every scene parameter for nothing to reuse; the
+    decision is kept for the same film, spp and settings."""
+    from mi_twopass.integrators import base
+
+    def no_key(*args, **kwargs):
+        raise AssertionError("the prepass key was computed")
+
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass"})
+    monkeypatch.setattr(base, "parameter_fingerprint", no_key)
+    image = render(scene, tp, spp=4)
+    assert np.isfinite(image).all()
+    assert tp.stats["twopass_choice"] == cost.COMPOSITIONS[0].name
+    assert all(v.startswith("no pilot") for v in tp.stats["twopass_skipped"].values())
+    render(scene, tp, spp=4)
+    assert tp.stats["prepass_seconds"] == 0.0  # the decision reused
+    monkeypatch.undo()
+    render(scene, tp, spp=1 << 14)  # long enough for a pilot: the key and the prepass
+    assert tp.stats["twopass_candidates"]
+    render(scene, tp, spp=4)  # back to the early decision, with its own stats
+    assert not tp.stats["twopass_candidates"] and tp.stats["prepass_seconds"] == 0.0
+
+
 def test_furnace_is_exact():
     """ρ = 0.5, Le = 1: L = 2 everywhere. K = 4 renders with every candidate tried; the image
     mean within 4 standard errors of 2 plus the chosen integrator's stated allowance (the
