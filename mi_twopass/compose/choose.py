@@ -242,6 +242,30 @@ def path_without_pilot(sensor, seed: int, spp: int, allowed, candidate,
     return Choice(decision, candidate(path_row), {"pilot": 0.0, "prepasses": 0.0})
 
 
+def probe_gate(scene, sensor, seed: int, spp: int, allowed, candidate,
+               settings: PilotSettings, budget_factor: float, probe: str = "auto"):
+    """Where the sample gates leave the pilot open and path's render is probed
+    (:func:`cost.probe_wanted`): ``(Choice of path with no pilot, or None, the probe)`` from
+    the gates in the probe's seconds (:func:`cost.too_dear_in_seconds`); ``(None, None)``
+    where no probe is wanted. ``twopass`` asks before its prepass key (and hands the probe to
+    :func:`choose`, which then does not probe again)."""
+    path_row = cost.COMPOSITIONS[0]
+    if path_row not in allowed or len(allowed) < 2 or not cost.probe_wanted(backend_name(),
+                                                                             probe):
+        return None, None
+    pixels = choose_pixels(sensor, settings.pixels, seed)
+    path_integ = candidate(path_row)
+    probed = probe_render(scene, sensor, path_integ, seed + _PROBE_SEED)
+    dear = cost.too_dear_in_seconds(probed, spp, pilot_samples(settings, pixels),
+                                    pixels.film_pixels, len(RUNS) + 1, budget_factor)
+    if dear is None:
+        return None, probed
+    decision = cost.Decision(chosen=path_row, spp=spp,
+                             skipped=_no_pilot([c for c in allowed if c.needs_prepass], dear),
+                             probe=probed)
+    return Choice(decision, path_integ, {"pilot": 0.0, "prepasses": 0.0}), probed
+
+
 def backend_name() -> str:
     """"cuda" or "llvm": the JIT backend of the variant set."""
     return "cuda" if dr.backend_v(mi.Float) == dr.JitBackend.CUDA else "llvm"
@@ -249,7 +273,7 @@ def backend_name() -> str:
 
 def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
            settings: PilotSettings, budget_factor: float, max_depth: int,
-           probe: str = "auto") -> Choice:
+           probe: str = "auto", probed=None) -> Choice:
     """``twopass``'s prepass: the pilot, then the structures that may pay, and the composition
     with the lowest predicted relMSE × seconds (:mod:`mi_twopass.compose.cost`).
 
@@ -264,8 +288,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
        (:func:`cost.pilot_too_dear`) or no prepass can fit the largest budget a candidate may
        get (:func:`cost.none_fit`, :func:`cost.largest_budget`); where path's render is
        probed first (``probe``: :func:`cost.probe_wanted`), the same two gates in its
-       measured seconds (:func:`cost.too_dear_in_seconds`), whose render time then sets the
-       budgets;
+       measured seconds (:func:`cost.too_dear_in_seconds`, :func:`probe_gate`; ``probed``:
+       a probe already made), whose render time then sets the budgets;
     3. the pilot path trace, split into direct, caustic and indirect variance;
     4. per row, cheapest best case first: skipped for a structural reason, a best case that
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
@@ -288,6 +312,9 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         return Choice(decision, integ, {"pilot": 0.0, "prepasses": build_seconds})
 
     early = path_without_pilot(sensor, seed, spp, allowed, candidate, settings, budget_factor)
+    if early is None and probed is None:
+        early, probed = probe_gate(scene, sensor, seed, spp, allowed, candidate, settings,
+                                   budget_factor, probe)
     if early is not None:
         early.seconds["pilot"] = time.perf_counter() - t_start
         return early
@@ -295,19 +322,6 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     film_pixels = pixels.film_pixels
     path_row = cost.COMPOSITIONS[0]
     path_integ = candidate(path_row)
-    probed = None
-    if path_row in allowed:
-        prepassed = [c for c in allowed if c.needs_prepass]
-        too_big = None
-        if cost.probe_wanted(backend_name(), probe):
-            probed = probe_render(scene, sensor, path_integ, seed + _PROBE_SEED)
-            dear = cost.too_dear_in_seconds(probed, spp, pilot_samples(settings, pixels),
-                                            film_pixels, len(RUNS) + 1, budget_factor)
-            too_big = _no_pilot(prepassed, dear) if dear is not None else None
-        if too_big is not None:
-            decision = cost.Decision(chosen=path_row, spp=spp, skipped=too_big, probe=probed)
-            return Choice(decision, path_integ, {"pilot": time.perf_counter() - t_start,
-                                                  "prepasses": 0.0})
     parts_out = []
     path_run = pilot(scene, sensor, pixels, settings, path_sum_estimator(path_integ, parts_out),
                      seed)
@@ -439,4 +453,4 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
 
 
 __all__ = ["Choice", "backend_name", "candidate_estimator", "check_bias", "choose", "fit_frozen",
-           "path_sum_estimator", "path_without_pilot", "sample_gates", "traits"]
+           "path_sum_estimator", "path_without_pilot", "probe_gate", "sample_gates", "traits"]

@@ -12,7 +12,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..compose import cost
-from ..compose.choose import choose, path_without_pilot
+from ..compose.choose import choose, path_without_pilot, probe_gate
 from ..compose.pilot import PilotSettings
 from ..prepass.radiosity import SolveMemo
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
@@ -153,6 +153,7 @@ class TwoPassChooser(TwoPassIntegrator):
         self._radiosity_memo = SolveMemo()
         self._render_spp = 0
         self._early = None  # (key, Choice) of the last early_path that found path
+        self._probed = None  # path's render probe made by early_path, for choose
         #: samples per pixel of the whole image when a caller renders it in several passes
         #: (``python -m mi_twopass render`` does): the choice is made for the whole, not a pass
         self.planned_spp = 0
@@ -202,7 +203,7 @@ class TwoPassChooser(TwoPassIntegrator):
         try:
             return choose(scene, self.prepass_sensor, seed, self._render_spp, self.allowed,
                           self.candidate, self.pilot_settings, self.pilot_budget,
-                          self.max_depth, self.path_probe)
+                          self.max_depth, self.path_probe, self._probed)
         finally:
             self._radiosity_memo.clear()  # the chosen candidate keeps its own structure
 
@@ -212,9 +213,12 @@ class TwoPassChooser(TwoPassIntegrator):
         before :meth:`ensure_prepass`, whose key fingerprints every scene parameter (9 ms on
         two CPU cores and 13 ms on an H200 for many_lights.xml's 494, most of twopass's cost
         over path's where it renders path), for a structure that holds nothing to reuse. The
-        gates read the film's size, the samples per pixel and the settings only, so their
-        answer is kept for those (seconds 0.0 when reused); the cached prepass is forgotten,
-        as a new one would replace it."""
+        sample gates read the film's size, the samples per pixel and the settings only, so
+        their answer is kept for those (seconds 0.0 when reused). Where they leave the pilot
+        open and path's render is probed (on a GPU,
+        :func:`~mi_twopass.compose.choose.probe_gate`), the gates in its seconds are asked too; their answer is not kept, and
+        the probe goes on to :func:`~mi_twopass.compose.choose.choose`. The cached prepass
+        is forgotten, as a new one would replace it."""
         key = (tuple(int(v) for v in sensor.film().crop_size()), self.settings(), seed)
         if self._early is not None and self._early[0] == key:
             choice = self._early[1]
@@ -223,19 +227,23 @@ class TwoPassChooser(TwoPassIntegrator):
             self._prepass_time = choice.seconds["pilot"]
             return choice, 0.0
         t0 = time.perf_counter()
-        choice = path_without_pilot(sensor, seed, max(self._render_spp or
-                                                      sensor.sampler().sample_count(), 1),
-                                    self.allowed, self.candidate, self.pilot_settings,
-                                    self.pilot_budget)
-        if choice is None:
-            return None, 0.0
+        spp = max(self._render_spp or sensor.sampler().sample_count(), 1)
+        choice = path_without_pilot(sensor, seed, spp, self.allowed, self.candidate,
+                                    self.pilot_settings, self.pilot_budget)
+        if choice is None:  # on a GPU, path's render probed: its gates, and the probe kept
+            choice, self._probed = probe_gate(scene, sensor, seed, spp, self.allowed,
+                                              self.candidate, self.pilot_settings,
+                                              self.pilot_budget, self.path_probe)
+            if choice is None:
+                return None, 0.0
+            key = None  # the probe's answer depends on the scene: not kept
         seconds = time.perf_counter() - t0
         choice.seconds["pilot"] = seconds
         self.structure, self._prepass_key = choice, None
         self._prepass_scene, self._prepass_sensor_obj = scene, sensor
         self._prepass_time = seconds
         self._prepass_stats = dict(self.prepass_stats(choice))
-        self._early = (key, choice)
+        self._early = (key, choice) if key is not None else None
         return choice, seconds
 
     def prepass_stats(self, choice):
@@ -280,7 +288,10 @@ class TwoPassChooser(TwoPassIntegrator):
             return TwoPassIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
         choice, seconds = self.early_path(scene, sensor, seed)
         if choice is None:
-            choice, seconds = self.ensure_prepass(scene, seed, sensor)
+            try:
+                choice, seconds = self.ensure_prepass(scene, seed, sensor)
+            finally:
+                self._probed = None  # handed to choose, or stale where the prepass was reused
         chosen = choice.integrator
         chosen.sample_seed_offset = self.sample_seed_offset
         image = chosen.render(scene, sensor, seed, spp, develop, evaluate)

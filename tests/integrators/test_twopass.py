@@ -206,6 +206,46 @@ def test_where_the_sample_gates_rule_out_the_pilot_no_prepass_key_is_computed(mo
     assert not tp.stats["twopass_candidates"] and tp.stats["prepass_seconds"] == 0.0
 
 
+def test_where_the_probe_rules_out_the_pilot_no_prepass_key_is_computed(monkeypatch):
+    """path_probe="on" with made-up probe figures. A 0.018 s render leaves no room: path,
+    with no prepass key and the probe in the stats. A long one (0.5 s per spp) leaves room:
+    the pilot runs, on the probe made before the key (one probe per render)."""
+    import mi_twopass.compose.choose as choose_module
+    from mi_twopass.integrators import base
+
+    scene = mi.load_dict(hs.box())
+    calls = []
+
+    def fake(figures):
+        def probe(scene, sensor, integ, seed):
+            calls.append(seed)
+            return figures
+        return probe
+
+    def no_key(*args, **kwargs):
+        raise AssertionError("the prepass key was computed")
+
+    spp = 1 << 16  # the sample gates leave the pilot open
+    monkeypatch.setattr(choose_module, "probe_render", fake(cost.RenderProbe(0.011, 1e-7)))
+    with monkeypatch.context() as m:
+        m.setattr(base, "parameter_fingerprint", no_key)
+        tp = mi.load_dict({"type": "twopass", "path_probe": "on", "direct": "emitter"})
+        tp.planned_spp = spp
+        render(scene, tp, spp=1)
+    assert len(calls) == 1 and tp.stats["twopass_probe"]["fixed_seconds"] == 0.011
+    assert not tp.stats["twopass_candidates"]
+    assert all(v.startswith("no pilot: path's render") for v in
+               tp.stats["twopass_skipped"].values())
+    calls.clear()
+    monkeypatch.setattr(choose_module, "probe_render", fake(cost.RenderProbe(0.001, 0.5)))
+    tp = mi.load_dict({"type": "twopass", "path_probe": "on", "direct": "emitter",
+                       "caustics": "off"})  # path and the two far fields
+    tp.planned_spp = spp
+    render(scene, tp, spp=1)
+    assert len(calls) == 1 and tp.stats["twopass_probe"]["seconds_per_spp"] == 0.5
+    assert cost.COMPOSITIONS[0].name in tp.stats["twopass_candidates"]  # the pilot ran
+
+
 def test_furnace_is_exact():
     """ρ = 0.5, Le = 1: L = 2 everywhere. K = 4 renders with every candidate tried; the image
     mean within 4 standard errors of 2 plus the chosen integrator's stated allowance (the
