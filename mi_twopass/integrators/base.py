@@ -211,7 +211,8 @@ def parameter_fingerprint(obj, skip_camera=False) -> str:
     concatenated on the device and copied in one transfer. On many_lights.xml (494
     parameters) the whole fingerprint takes 9 ms on two CPU cores and 13 ms on an H200,
     mostly Python per parameter (``tools/twopass_overhead.py``, docs/results/gpu-2026-11-27b).
-    Copying each leaf array separately instead of ``dr.ravel`` cost more: 12 ms on the CPU."""
+    Copying each leaf array separately instead of ``dr.ravel`` cost more: 12 ms on the CPU
+    (ad hoc timing)."""
     camera_types = (mi.Sensor, mi.Film, mi.Sampler, mi.ReconstructionFilter)
     params = mi.traverse(obj)
     items = []  # (key, bytes) or (key, (header, UInt32 words on the device))
