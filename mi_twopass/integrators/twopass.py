@@ -49,7 +49,8 @@ class TwoPassChooser(TwoPassIntegrator):
         0. no pilot (path renders) where its samples would be more than 15 % of the
            render's (in proportion to ``pilot_budget``) or no prepass's least cost fits
            path's predicted render time (the most the first candidate may spend):
-           :func:`mi_twopass.compose.cost.pilot_too_dear`, :func:`~mi_twopass.compose.cost.none_fit`;
+           :func:`mi_twopass.compose.cost.pilot_too_dear`,
+           :func:`~mi_twopass.compose.cost.none_fit`;
            on a GPU, where the pilot and the prepasses are host work that path samples'
            time does not predict, the same two tests in seconds, against path's render
            timed at 1 spp (``path_probe``:
@@ -216,9 +217,10 @@ class TwoPassChooser(TwoPassIntegrator):
         sample gates read the film's size, the samples per pixel and the settings only, so
         their answer is kept for those (seconds 0.0 when reused). Where they leave the pilot
         open and path's render is probed (on a GPU,
-        :func:`~mi_twopass.compose.choose.probe_gate`), the gates in its seconds are asked too; their answer is not kept, and
-        the probe goes on to :func:`~mi_twopass.compose.choose.choose`. The cached prepass
-        is forgotten, as a new one would replace it."""
+        :func:`~mi_twopass.compose.choose.probe_gate`), the gates in its seconds are asked
+        too; their answer is not kept, and the probe goes on to
+        :func:`~mi_twopass.compose.choose.choose`. The cached prepass is forgotten, as a new
+        one would replace it."""
         key = (tuple(int(v) for v in sensor.film().crop_size()), self.settings(), seed)
         if self._early is not None and self._early[0] == key:
             choice = self._early[1]
