@@ -108,6 +108,15 @@ def test_a_winner_that_may_be_biased_is_tested_again_before_a_long_render():
     assert path_row.name not in decision.bias_checks  # path is the reference: never tested
 
 
+def rex_case():
+    """The lit box, its sensor, a twopass, the rex row and a path pilot's figures: what the
+    tests of a cut rex's second build share."""
+    scene = mi.load_dict(hs.box())
+    return (scene, scene.sensors()[0], chooser(),
+            next(c for c in cost.COMPOSITIONS if c.plugin == "rex"),
+            cost.Measured(0.0, 0.01, 1.0, 0.0, 1.0))
+
+
 def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypatch):
     """A rex candidate cut below the image's need is built again with another seed; the noise
     the two builds do not share is recorded. Below the limit the cut build is kept; above it,
@@ -115,11 +124,7 @@ def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypa
     read far above the limit), or left out, with the reason, where its budget has no room."""
     from mi_twopass.compose.choose import fit_frozen
 
-    scene = mi.load_dict(hs.box())
-    sensor = scene.sensors()[0]
-    tp = chooser()
-    rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
-    path_m = cost.Measured(0.0, 0.01, 1.0, 0.0, 1.0)
+    scene, sensor, tp, rex_row, path_m = rex_case()
     cut, need = 1 << 16, 1 << 18
     film = 32 * 32
 
@@ -155,11 +160,7 @@ def test_a_cut_rexs_twin_gets_the_photons_its_budget_pays_for_and_is_the_build_k
     as the larger build's (frozen_of_larger). With no room it has the cut's photons."""
     from mi_twopass.compose.choose import fit_frozen
 
-    scene = mi.load_dict(hs.box())
-    sensor = scene.sensors()[0]
-    tp = chooser()
-    rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
-    path_m = cost.Measured(0.0, 0.01, 1.0, 0.0, 1.0)
+    scene, sensor, tp, rex_row, path_m = rex_case()
     cut, need = 1 << 16, 1 << 20
     monkeypatch.setattr(cost, "FROZEN_SHARE", 1e9)  # any noise is below the limit
     decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
