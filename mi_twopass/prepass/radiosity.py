@@ -204,14 +204,16 @@ def _sample_emission(scene, bounds, rng, active, guide=None):
 
 
 def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None,
-                 guide=None, importance=None, bounds=None):
+                 guide=None, importance=None, bounds=None, deposit_flux=True):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, element deposits (M+1, 3)
     or None, accounting dict, rays). ``guide``: where particles start
     (:mod:`mi_twopass.prepass.emission_guide`), else as Mitsuba samples emitter rays.
     ``importance``: per receiver (+1 sentinel), a weight; the accounting then holds each
     particle's ``cell`` and ``score``, the importance-weighted mean flux of all its deposits.
     ``bounds``: :func:`mi_twopass.scene.bounds.scene_bounds` of ``scene`` (computed when
-    ``None``)."""
+    ``None``). ``deposit_flux=False`` (the emission guide's pilot, which reads only ``cell`` and
+    ``score``): nothing is deposited, and the deposits, the element deposits and the receivers'
+    moments come back as ``None``."""
     N = patches.count
     M = elements.count if elements is not None else 0
     # seed, offset and scale are opaque: as literals they would make every seed (every fresh
@@ -247,18 +249,19 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     # the squared deposits (receiver_spread's effective count) on their own fixed-point scale
     quantum_w2 = 2.0 ** (math.ceil(math.log2(peak * peak)) - _FIXED_BITS)
     inv_quantum_w2 = dr.opaque(mi.Float64, 1.0 / quantum_w2)
-    target = dr.zeros(mi.Int64, 3 * (N + 1))
-    target_e = dr.zeros(mi.Int64, 3 * (M + 1)) if elements is not None else None
     # where on the receiving mesh (the elements, else the patches) the flux lands: Σ w·(p − c)/r
     # and the number of deposits per receiver (receiver_spread)
     recv = elements if elements is not None else patches
     R = recv.count
-    recv_inv_r = mi.Float(np.append(1.0 / np.maximum(receiver_radius(recv), 1e-30), 0.0)
-                          .astype(np.float32))
-    target_m = dr.zeros(mi.Int64, 3 * (R + 1))
-    target_nrm = dr.zeros(mi.Int64, 3 * (R + 1))
-    target_n = dr.zeros(mi.UInt32, R + 1)
-    target_w2 = dr.zeros(mi.Int64, R + 1)
+    if deposit_flux:
+        target = dr.zeros(mi.Int64, 3 * (N + 1))
+        target_e = dr.zeros(mi.Int64, 3 * (M + 1)) if elements is not None else None
+        recv_inv_r = mi.Float(np.append(1.0 / np.maximum(receiver_radius(recv), 1e-30), 0.0)
+                              .astype(np.float32))
+        target_m = dr.zeros(mi.Int64, 3 * (R + 1))
+        target_nrm = dr.zeros(mi.Int64, 3 * (R + 1))
+        target_n = dr.zeros(mi.UInt32, R + 1)
+        target_w2 = dr.zeros(mi.Int64, R + 1)
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
 
     active = dr.max(flux) > 0
@@ -281,24 +284,27 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         hit = active & si.is_valid()
         escaped = dr.select(active & ~hit, escaped + flux, escaped)
         pid = patches.lookup(si, hit)
-        deposit(target, pid, flux, hit & (pid < N))
+        if deposit_flux:
+            deposit(target, pid, flux, hit & (pid < N))
         rid = pid
         if elements is not None:
             rid = elements.lookup(si, hit)
-            deposit(target_e, rid, flux, hit & (rid < M))
+            if deposit_flux:
+                deposit(target_e, rid, flux, hit & (rid < M))
         at_recv = hit & (rid < R)
-        offset = (si.p - recv.gather("center", rid, at_recv)) \
-            * dr.gather(mi.Float, recv_inv_r, rid, at_recv)
-        deposit(target_m, rid, offset * dr.mean(flux), at_recv)
-        # the normal of the receiver's side (the side the particle arrives on)
-        side_n = dr.select(dr.dot(ray.d, si.n) < 0, si.n, -si.n)
-        deposit(target_nrm, rid, side_n * dr.mean(flux), at_recv)
-        dr.scatter_reduce(dr.ReduceOp.Add, target_n, mi.UInt32(1), rid, at_recv,
-                          mode=_DEPOSIT_MODE)
-        w2 = dr.clip(dr.round(mi.Float64(dr.square(dr.mean(flux))) * inv_quantum_w2), 0.0,
-                     _FIXED_CLAMP)
-        dr.scatter_reduce(dr.ReduceOp.Add, target_w2, mi.Int64(w2), rid, at_recv,
-                          mode=_DEPOSIT_MODE)
+        if deposit_flux:
+            offset = (si.p - recv.gather("center", rid, at_recv)) \
+                * dr.gather(mi.Float, recv_inv_r, rid, at_recv)
+            deposit(target_m, rid, offset * dr.mean(flux), at_recv)
+            # the normal of the receiver's side (the side the particle arrives on)
+            side_n = dr.select(dr.dot(ray.d, si.n) < 0, si.n, -si.n)
+            deposit(target_nrm, rid, side_n * dr.mean(flux), at_recv)
+            dr.scatter_reduce(dr.ReduceOp.Add, target_n, mi.UInt32(1), rid, at_recv,
+                              mode=_DEPOSIT_MODE)
+            w2 = dr.clip(dr.round(mi.Float64(dr.square(dr.mean(flux))) * inv_quantum_w2), 0.0,
+                         _FIXED_CLAMP)
+            dr.scatter_reduce(dr.ReduceOp.Add, target_w2, mi.Int64(w2), rid, at_recv,
+                              mode=_DEPOSIT_MODE)
         if importance_t is not None:
             dr.scatter_reduce(dr.ReduceOp.Add, score,
                               dr.mean(flux) * dr.gather(mi.Float, importance_t, rid, at_recv),
@@ -353,6 +359,11 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             result["truncated"] += np.array(flux, dtype=np.float64).reshape(3, -1).sum(axis=1)
             break
 
+    result["cell"] = np.asarray(cell, np.int64)
+    result["score"] = np.asarray(score, np.float64)
+    if not deposit_flux:
+        result.update(moments=None, normal_moments=None, deposit_count=None, deposit_w2=None)
+        return None, None, result, rays
     deposits = np.array(target, dtype=np.int64).reshape(N + 1, 3).astype(np.float64) * quantum
     deposits_e = None
     if elements is not None:
@@ -364,8 +375,6 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     result["deposit_count"] = np.array(target_n, dtype=np.int64)[:R]
     result["deposit_w2"] = np.array(target_w2, dtype=np.int64)[:R].astype(np.float64) \
         * quantum_w2
-    result["cell"] = np.asarray(cell, np.int64)
-    result["score"] = np.asarray(score, np.float64)
     return deposits, deposits_e, result, rays
 
 
@@ -609,7 +618,7 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
         nonlocal traced
         _, _, result, _ = _trace_batch(scene, patches, n, 0, seed + _GUIDE_SEED + stage, n,
                                        DEFAULT_MAX_BOUNCES, elements, guide=pilot_guide,
-                                       importance=W, bounds=bounds)
+                                       importance=W, bounds=bounds, deposit_flux=False)
         cell_of.append(result["cell"])
         # the common scale f·V_c: x the pilot's probability of the cell x its particle count
         score.append(result["score"] * pilot_guide.pmf[result["cell"]] * n)
