@@ -57,7 +57,6 @@ import mitsuba as mi
 import numpy as np
 
 from ..scene.emission import emitter_kinds
-from ..seeds import splitmix64
 
 #: cells per dimension where one (u2 or u3) pair of an emitter's samples moves its rays
 GRID_2D = 32
@@ -83,8 +82,6 @@ DEFENSIVE = 0.25
 #: camera paths of the importance pass, and the bounces each follows
 CAMERA_LANES = 1 << 16
 CAMERA_BOUNCES = 3
-#: salt of the camera paths' random numbers (apart from the particles')
-_SALT_CAMERA = 0xCA3E7A
 
 
 def moving_dims(scene, index: int, probes: int = 16, kind: str | None = None
@@ -291,41 +288,23 @@ def camera_importance(scene, sensor, receivers, seed: int, lanes: int = CAMERA_L
                       ) -> np.ndarray:
     """Per receiver (+1 sentinel): how many of ``lanes`` camera paths, each of
     ``CAMERA_BOUNCES`` BSDF-sampled bounces from a uniform film position, hit it (module
-    docstring, step 2). ``receivers``: the elements, else the patches (``lookup``). The
-    bounces run in one symbolic loop, one kernel: a wavefront per bounce cost 33 ms of a
-    ~95 ms guide on scenes_xml/many_lights.xml at 256² (each bounce's ``ray_intersect`` its
-    own Embree call)."""
-    idx = dr.arange(mi.UInt64, lanes)
-    # an opaque seed: as a literal it would compile the loop anew for every seed
-    rng = mi.PCG32(size=lanes, initstate=dr.opaque(mi.UInt64, splitmix64(seed ^ _SALT_CAMERA)),
-                   initseq=idx)
-    film = mi.Point2f(rng.next_float32(), rng.next_float32())
-    aperture = mi.Point2f(rng.next_float32(), rng.next_float32())
-    ray, _ = sensor.sample_ray(0.0, 0.5, film, aperture)
+    docstring, step 2). ``receivers``: the elements, else the patches (``lookup``)."""
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(dr.opaque(mi.UInt32, seed), lanes)  # a literal seed: kernels per seed
+    ray, _ = sensor.sample_ray(0.0, 0.5, sampler.next_2d(), sampler.next_2d())
     ray = mi.Ray3f(ray)
     W = dr.zeros(mi.Float, receivers.count + 1)
     ctx = mi.BSDFContext()
     active = dr.full(mi.Bool, True, lanes)
-    bounce = dr.zeros(mi.UInt32, lanes)
-    count = receivers.count
-
-    def cond(ray, rng, active, bounce):
-        return active & (bounce < CAMERA_BOUNCES)
-
-    def body(ray, rng, active, bounce):
+    for _ in range(CAMERA_BOUNCES):
         si = scene.ray_intersect(ray, active)
         active &= si.is_valid()
         rid = receivers.lookup(si, active)
-        dr.scatter_reduce(dr.ReduceOp.Add, W, 1.0, rid, active & (rid < count))
-        u1 = rng.next_float32()
-        u2 = mi.Point2f(rng.next_float32(), rng.next_float32())
-        bs, w = si.bsdf(ray).sample(ctx, si, u1, u2, active)
+        dr.scatter_reduce(dr.ReduceOp.Add, W, 1.0, rid, active & (rid < receivers.count))
+        bs, w = si.bsdf(ray).sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
         active &= (bs.pdf > 0) & dr.any(w > 0)
         ray = si.spawn_ray(si.to_world(bs.wo))
-        return ray, rng, active, bounce + 1
-
-    dr.while_loop((ray, rng, active, bounce), cond, body, label="camera_importance",
-                  mode="symbolic")
+        dr.eval(W, ray, active)
     W = np.asarray(W, np.float64)
     W[-1] = 0.0
     return W
