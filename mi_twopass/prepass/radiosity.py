@@ -65,7 +65,7 @@ from ..progress import progress as progress_bar
 from ..rays import spawn_ray
 from ..scene.bounds import scene_bounds
 from ..scene.emission import emitter_kinds, emitter_rays
-from ..scene.patches import Patches, build_patches
+from ..scene.patches import Patches, build_patches, scene_shapes
 from ..scenefile import load_scene
 from ..seeds import splitmix64
 from . import emission_guide
@@ -396,14 +396,17 @@ def _receiving_area(patches, flux):
 ELEMENT_SAMPLES = 16
 
 
-def receiving_elements(scene, max_patches: int, elements_per_patch: int, seed: int = 0):
+def receiving_elements(scene, max_patches: int, elements_per_patch: int, seed: int = 0,
+                       shapes=None):
     """The receiving mesh of :func:`solve_radiosity` (Cohen et al. 1986 patch/element
     substructuring): patches of ``elements_per_patch`` × ``max_patches`` budget, each probed at
-    ``ELEMENT_SAMPLES`` points; ``None`` for ``elements_per_patch`` ≤ 1 (elements off)."""
+    ``ELEMENT_SAMPLES`` points; ``None`` for ``elements_per_patch`` ≤ 1 (elements off).
+    ``shapes``: :func:`~mi_twopass.scene.patches.scene_shapes` of ``scene``, where the caller
+    has them."""
     if int(elements_per_patch) <= 1:
         return None
     return build_patches(scene, max_patches=int(elements_per_patch) * int(max_patches),
-                         seed=seed, samples=ELEMENT_SAMPLES)
+                         seed=seed, samples=ELEMENT_SAMPLES, shapes=shapes)
 
 
 #: a receiver (element, else patch) whose deposited flux covers it unevenly by more than this
@@ -879,9 +882,10 @@ def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
                        seconds=time.perf_counter() - t0, reused=True)
     simplified = bool(settings.prepass_scene)
     target = load_scene(settings.prepass_scene) if simplified else scene
-    patches = build_patches(target, max_patches=settings.max_patches, seed=seed)
+    shapes = scene_shapes(target)  # read once for the patches and the elements
+    patches = build_patches(target, max_patches=settings.max_patches, seed=seed, shapes=shapes)
     elements = receiving_elements(target, settings.max_patches, settings.elements_per_patch,
-                                  seed)
+                                  seed, shapes=shapes)
     n_particles = max(settings.min_particles, settings.particles_per_patch * patches.count)
     guide, pilot, noise = guide_emission(target, sensor, patches, elements, seed)
     n_particles = guided_particles(n_particles, noise)

@@ -399,3 +399,24 @@ def test_no_kernel_is_compiled_anew_for_each_seed():
                              if k["type"] == dr.KernelType.JIT})
     assert per_seed[0] and all(k == per_seed[0] for k in per_seed[1:]), \
         [len(k - per_seed[0]) for k in per_seed]
+
+
+def test_shapes_read_once_build_the_same_patches():
+    """Patches built from shapes read beforehand (``scene_shapes``, shared by the radiosity
+    prepass's patches and elements) equal those that read the shapes themselves, for a mesh
+    and a rectangle, at two budgets from one read."""
+    from mi_twopass.scene.patches import scene_shapes
+    V, F = grid_mesh(20, size=2.0, bump=0.1)
+    scene = mi.load_dict({
+        "type": "scene", "sheet": make_mesh("sheet", V, F),
+        "wall": {"type": "rectangle", "to_world": T().translate([0, 0, 1.5]),
+                 "emitter": {"type": "area", "radiance": 2.0}}})
+    shapes = scene_shapes(scene)
+    for budget in (64, 1024):
+        own = build_patches(scene, max_patches=budget, seed=3)
+        shared = build_patches(scene, max_patches=budget, seed=3, shapes=shapes)
+        assert own.count == shared.count > 0
+        for name in ("area", "center", "normal", "albedo", "Le", "exposure", "tri_patch",
+                     "tri_vertices"):
+            np.testing.assert_array_equal(np.asarray(getattr(own, name)),
+                                          np.asarray(getattr(shared, name)), err_msg=name)
