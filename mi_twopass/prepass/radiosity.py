@@ -48,7 +48,7 @@ order of the atomic additions (and whatever ``batch_size``, up to that rounding)
 plain atomics (``dr.ReduceMode.Direct``): the deposits spread over thousands of receivers, so
 they rarely contend, and the LLVM backend's default for small targets (``Expand``: a copy of
 the target per thread, merged after every kernel) made the solve slower (Cornell box, 256²:
-0.095 s against 0.115 s, median of five solves, ``tools/solve_timing.py``).
+0.087 s against 0.110 s, median of four solves, ``tools/solve_timing.py --mode``).
 """
 from __future__ import annotations
 
