@@ -1,9 +1,18 @@
-"""Dr.Jit arrays to numpy without a kernel per array size, and numpy rows back to Dr.Jit.
+"""Dr.Jit arrays to numpy without a kernel per array size, and numpy arrays to Dr.Jit without
+a kernel per memory alignment.
 
 ``np.array`` of a nested Dr.Jit array (``mi.Point3f``, ``mi.Color3f`` of n lanes) interleaves
 its components in a kernel whose strides are the literal n, so every new size compiles a new
 kernel (~20–100 ms each; a prepass whose point counts change with the seed paid it on every
 render). Evaluating the components together and copying each flat component does not.
+
+The other way, ``mi.Float(numpy_array)`` on the LLVM backend maps the array's memory without a
+copy, and Dr.Jit compiles a kernel that reads 64-byte-aligned memory apart from one that reads
+unaligned memory (``align 64`` against ``align 1`` in its IR). NumPy's allocations are aligned
+or not by chance, so such kernels were compiled again by chance: radiance_cache's prepass on
+veach-bidir at 256² spent 1.8–2.8 s of 2.7–3.6 s compiling 16–19 kernels in some builds, 0.75 s
+in the others (``tools/kernel_recompiles.py``). :func:`jit` hands Dr.Jit only 64-byte-aligned
+NumPy memory, so every kernel is the aligned one.
 """
 from __future__ import annotations
 
@@ -20,9 +29,34 @@ def columns(v, dtype=np.float64) -> np.ndarray:
     return np.stack([np.asarray(c, dtype=dtype).reshape(-1) for c in comps], axis=1)
 
 
+#: the alignment of the NumPy memory :func:`jit` hands to Dr.Jit (a cache line, AVX-512's vector)
+ALIGNMENT = 64
+
+
+def aligned(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous array whose data start on an :data:`ALIGNMENT`-byte boundary: ``a``
+    itself where it is one, else a copy."""
+    a = np.ascontiguousarray(a)
+    if a.ctypes.data % ALIGNMENT == 0:
+        return a
+    buf = np.empty(a.nbytes + ALIGNMENT, np.uint8)
+    start = -buf.ctypes.data % ALIGNMENT
+    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out[...] = a
+    return out
+
+
+def jit(cls, *args, **kwargs):
+    """``cls(*args, **kwargs)`` with every NumPy array among ``args`` first made
+    :func:`aligned` (module docstring): the way this package turns host arrays into Dr.Jit
+    arrays (``jit(mi.Float, x)`` for ``mi.Float(x)``). Other arguments pass unchanged."""
+    return cls(*(aligned(a) if isinstance(a, np.ndarray) and a.ndim else a for a in args),
+               **kwargs)
+
+
 def vectors(x, cls):
     """The inverse of :func:`columns`: a numpy ``(n, 3)`` array as a Dr.Jit 3-vector ``cls``
     (``mi.Point3f``, ``mi.Vector3f``, ``mi.Color3f``) of n float32 lanes, one contiguous copy
     per component."""
-    cols = np.ascontiguousarray(np.asarray(x).reshape(-1, 3).T, dtype=np.float32)
-    return cls(*(mi.Float(cols[i]) for i in range(3)))
+    cols = np.asarray(x, dtype=np.float32).reshape(-1, 3).T
+    return cls(*(jit(mi.Float, cols[i]) for i in range(3)))

@@ -39,6 +39,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..evaluation.metrics import RELMSE_EPS
+from ..host_arrays import jit
 from ..seeds import hash31
 from .cost import RenderProbe
 
@@ -102,7 +103,7 @@ def choose_blocks(sensor, count: int, size: int, seed: int) -> PilotPixels:
 
 def _camera_rays(sensor, pixels: PilotPixels, samples: int, sampler):
     """One camera ray per (pixel, sample), sample-minor, with its importance weight."""
-    idx = mi.UInt32(np.repeat(pixels.index, samples))  # data, not a size baked into a kernel
+    idx = jit(mi.UInt32, np.repeat(pixels.index, samples))  # data, not a size baked into a kernel
     offset = mi.Point2f(mi.Float(idx % pixels.width), mi.Float(idx // pixels.width))
     crop = sensor.film().crop_offset()
     pos = (offset + mi.Vector2f(crop) + sampler.next_2d()) / mi.Vector2f(

@@ -56,6 +56,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..host_arrays import jit
 from ..scene.emission import emitter_kinds
 
 #: cells per dimension where one (u2 or u3) pair of an emitter's samples moves its rays
@@ -153,7 +154,7 @@ def cells(scene) -> EmissionCells:
     """:class:`EmissionCells` of ``scene``'s emitters (module docstring, step 1)."""
     n = len(scene.emitters())
     select = np.broadcast_to(np.asarray(
-        scene.pdf_emitter(mi.UInt32(np.arange(n, dtype=np.uint32))), np.float64).ravel(),
+        scene.pdf_emitter(jit(mi.UInt32, np.arange(n, dtype=np.uint32))), np.float64).ravel(),
         (n,)) if n else np.zeros(0)
     kinds = emitter_kinds(scene)
     moves = [moving_dims(scene, i, kind=kinds[i]) for i in range(n)]
@@ -186,13 +187,13 @@ class EmissionGuide:
         pmf = pmf / pmf.sum()
         self.cells = cells_
         self.pmf = pmf
-        self._distr = mi.DiscreteDistribution(mi.Float(pmf.astype(np.float32)))
-        self._emitter = mi.UInt32(cells_.emitter)
-        self._lo = [mi.Float(cells_.lo[:, k].astype(np.float32)) for k in range(4)]
-        self._size = [mi.Float(cells_.size[:, k].astype(np.float32)) for k in range(4)]
+        self._distr = mi.DiscreteDistribution(jit(mi.Float, pmf.astype(np.float32)))
+        self._emitter = jit(mi.UInt32, cells_.emitter)
+        self._lo = [jit(mi.Float, cells_.lo[:, k].astype(np.float32)) for k in range(4)]
+        self._size = [jit(mi.Float, cells_.size[:, k].astype(np.float32)) for k in range(4)]
         # 1 / density of u within the cell: V_c / P_c
         inv = np.where(pmf > 0, cells_.volume / np.where(pmf > 0, pmf, 1.0), 0.0)
-        self._inv_density = mi.Float(inv.astype(np.float32))
+        self._inv_density = jit(mi.Float, inv.astype(np.float32))
 
     def sample(self, u1, u2, u3, active=True):
         """(cell, emitter index, 1 / density of the drawn (u2, u3), the reused u1, u2 and u3

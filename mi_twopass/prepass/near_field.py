@@ -57,6 +57,7 @@ import numpy as np
 
 from .. import sh
 from ..form_factor import point_to_disk_approx, polygon_form_factor
+from ..host_arrays import jit
 from ..scene.bounds import scene_diagonal
 from ..tables import Tables
 
@@ -108,12 +109,12 @@ class NearField:
         """Dr.Jit copies of the tree, the triangles and the cell lists (:meth:`LeafCells.tables`),
         built on first use and kept (:func:`build_near_field` builds them, outside any symbolic
         loop; set ``cells`` before)."""
-        f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
+        f = lambda a: jit(mi.Float, np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
         cells = self.cells if self.cells is not None else LeafCells.empty()
         t = Tables(
             center=f(self.center), radius=f(self.radius), area=f(self.area), B=f(self.B),
-            normal=f(self.normal), skip=mi.UInt32(self.skip.astype(np.uint32)),
-            tri=mi.UInt32(np.where(self.tri < 0, 0xFFFFFFFF, self.tri).astype(np.uint32)),
+            normal=f(self.normal), skip=jit(mi.UInt32, self.skip.astype(np.uint32)),
+            tri=jit(mi.UInt32, np.where(self.tri < 0, 0xFFFFFFFF, self.tri).astype(np.uint32)),
             verts=f(self.verts), tri_normal=f(self.tri_normal), tri_B=f(self.tri_B),
             ccenter=f(self.ccenter), cradius=f(self.cradius), half=f(self.half),
             M=dr.opaque(mi.UInt32, self.node_count), **cells.tables())
@@ -156,7 +157,7 @@ class NearField:
         abs_n = dr.abs(n)
         B_D = mi.Color3f(B_D)
         alpha = dr.opaque(mi.Float, float(alpha))  # changes per prepass: not a literal
-        of = mi.Float(float(open_factor) if np.isfinite(open_factor) else 3e38)
+        of = jit(mi.Float, float(open_factor) if np.isfinite(open_factor) else 3e38)
         B_C = mi.Color3f(0.0)
         visits = mi.UInt32(0)
         node = mi.UInt32(0)
@@ -319,9 +320,9 @@ class LeafCells:
 
     def tables(self):
         """Dr.Jit copies (grid constants opaque: a new prepass does not recompile)."""
-        return dict(cell_first=mi.UInt32(self.first.astype(np.uint32)),
-                    cell_count=mi.UInt32(self.count.astype(np.uint32)),
-                    cell_leaves=mi.UInt32(self.leaves.astype(np.uint32)),
+        return dict(cell_first=jit(mi.UInt32, self.first.astype(np.uint32)),
+                    cell_count=jit(mi.UInt32, self.count.astype(np.uint32)),
+                    cell_leaves=jit(mi.UInt32, self.leaves.astype(np.uint32)),
                     cell_lo=dr.opaque(mi.Point3f, [float(v) for v in self.lo]),
                     cell_inv=dr.opaque(mi.Vector3f, [float(1.0 / v) for v in self.cell]),
                     cell_res=dr.opaque(mi.Vector3i, [int(v) for v in self.res]))
@@ -355,10 +356,10 @@ def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
     K = int(np.prod(span))
     if L == 0 or L * K >= 1 << 31:
         raise ValueError(f"near field: {L} leaves x {K} cells each is too many for the lists")
-    f = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
+    f = lambda a: jit(mi.Float, np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa: E731
     tri = near.tri[leaves]
     cc_t, nt_t, a_t = f(near.ccenter[leaves]), f(near.tri_normal[tri]), f(near.verts[tri, 0])
-    occ_t = mi.UInt32(occupied.astype(np.uint32))
+    occ_t = jit(mi.UInt32, occupied.astype(np.uint32))
     K_o, sy, sz = (dr.opaque(mi.UInt32, int(v)) for v in (K, span[1], span[2]))
     res_o = dr.opaque(mi.Vector3i, [int(v) for v in res])
     lo_o = dr.opaque(mi.Point3f, [float(v) for v in lo])
@@ -681,7 +682,7 @@ def buried_triangles(scene, verts, tri_normal):
     d = np.concatenate(dirs)
     scale = scene_diagonal(scene)  # offsets relative to the scene's size
     o = np.tile(c, (4, 1)) + 1e-5 * scale * np.tile(n, (4, 1))
-    f = lambda a: mi.Vector3f(*(mi.Float(np.ascontiguousarray(a[:, k], dtype=np.float32))  # noqa
+    f = lambda a: mi.Vector3f(*(jit(mi.Float, np.ascontiguousarray(a[:, k], dtype=np.float32))  # noqa
                                 for k in range(3)))
     ray = mi.Ray3f(mi.Point3f(f(o)), f(d))
     si = scene.ray_intersect(ray)

@@ -61,6 +61,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import units
+from ..host_arrays import jit
 from ..progress import progress as progress_bar
 from ..rays import spawn_ray
 from ..scene.bounds import scene_bounds
@@ -109,7 +110,7 @@ class RadiositySolution:
     def __post_init__(self):
         def table(B):
             L = units.radiance_from_radiosity(np.vstack([B, np.zeros((1, 3))])).astype(np.float32)
-            return mi.Color3f(*(mi.Float(np.ascontiguousarray(L[:, c])) for c in range(3)))
+            return mi.Color3f(*(jit(mi.Float, np.ascontiguousarray(L[:, c])) for c in range(3)))
 
         self._L_reflected = table(self.B_reflected)
         self._L_total = table(self.B_emitted + self.B_reflected)
@@ -228,7 +229,7 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     lane = dr.arange(mi.UInt32, n)
     score = dr.zeros(mi.Float, n)
     dr.make_opaque(score)
-    importance_t = mi.Float(np.asarray(importance, np.float32)) if importance is not None \
+    importance_t = jit(mi.Float, np.asarray(importance, np.float32)) if importance is not None \
         else None
     dr.eval(o, d, flux, rng)
 
@@ -256,7 +257,7 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     if deposit_flux:
         target = dr.zeros(mi.Int64, 3 * (N + 1))
         target_e = dr.zeros(mi.Int64, 3 * (M + 1)) if elements is not None else None
-        recv_inv_r = mi.Float(np.append(1.0 / np.maximum(receiver_radius(recv), 1e-30), 0.0)
+        recv_inv_r = jit(mi.Float, np.append(1.0 / np.maximum(receiver_radius(recv), 1e-30), 0.0)
                               .astype(np.float32))
         target_m = dr.zeros(mi.Int64, 3 * (R + 1))
         target_nrm = dr.zeros(mi.Int64, 3 * (R + 1))
@@ -748,14 +749,14 @@ class VirtualLuminaires:
         is_vl = np.zeros(patches.count + 1, dtype=bool)
         is_vl[chosen] = True
         #: per patch (+1 sentinel): is it a virtual luminaire
-        self.mask = mi.Bool(is_vl)
+        self.mask = jit(mi.Bool, is_vl)
         self.ids = self.distr = self.pmf_table = None
         if chosen.size:
-            self.ids = mi.UInt32(chosen)
-            self.distr = mi.DiscreteDistribution(mi.Float(power[chosen].astype(np.float32)))
+            self.ids = jit(mi.UInt32, chosen)
+            self.distr = mi.DiscreteDistribution(jit(mi.Float, power[chosen].astype(np.float32)))
             pmf = np.zeros(patches.count + 1, dtype=np.float32)
             pmf[chosen] = power[chosen] / power[chosen].sum()
-            self.pmf_table = mi.Float(pmf)
+            self.pmf_table = jit(mi.Float, pmf)
 
     def sample(self, u, active=True):
         """A virtual luminaire's patch id, chosen ∝ its power from the uniform ``u``."""

@@ -77,6 +77,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import units
+from ..host_arrays import jit
 from ..progress import progress
 from ..rays import spawn_ray
 from ..scene.bounds import infinite_light_leaks, scene_bounds
@@ -281,12 +282,12 @@ class RexTables:
 
         # Dr.Jit copies (padded by one entry: a gather never reads an empty array)
         def u32(a):
-            return mi.UInt32(np.append(np.asarray(a, np.uint32), 0))
+            return jit(mi.UInt32, np.append(np.asarray(a, np.uint32), 0))
 
         def f32(a):
-            return mi.Float(np.append(np.asarray(a, np.float32).ravel(), np.zeros(3, np.float32)))
+            return jit(mi.Float, np.append(np.asarray(a, np.float32).ravel(), np.zeros(3, np.float32)))
 
-        self.d_id_to_shape = mi.UInt32(id_to_shape)
+        self.d_id_to_shape = jit(mi.UInt32, id_to_shape)
         self.d_kind = u32(kind)
         self.d_sides = u32(sides)
         self.d_rex_base = u32(rex_base)
@@ -713,8 +714,9 @@ def _emitter_rays(scene, bounds, em, adapt_dim, s_adapt, s_other):
     s3 = np.where(use3[:, None], s_adapt, s_other)
     s2 = np.clip(s2, 0.0, ONE_MINUS_EPS).astype(np.float32)
     s3 = np.clip(s3, 0.0, ONE_MINUS_EPS).astype(np.float32)
-    return emitter_rays(scene, bounds, mi.UInt32(em.astype(np.uint32)),
-                        mi.Point2f(s2[:, 0], s2[:, 1]), mi.Point2f(s3[:, 0], s3[:, 1]))
+    return emitter_rays(scene, bounds, jit(mi.UInt32, em.astype(np.uint32)),
+                        jit(mi.Point2f, s2[:, 0], s2[:, 1]),
+                        jit(mi.Point2f, s3[:, 0], s3[:, 1]))
 
 
 def _pilot(scene, bounds, tables, seen_rex, adapt_dim, em, lev, ix, iy, rng, seed, n_em):
@@ -850,14 +852,14 @@ class FinalShoot:
             raise ValueError("too many photons for one emitter (at most 2^32 strata)")
 
         def u32(a):
-            return mi.UInt32(np.asarray(a, np.uint32))
+            return jit(mi.UInt32, np.asarray(a, np.uint32))
         self.E = E
         self.d_off = u32(off)
         self.d_leaf_off = u32(np.concatenate([[0], np.cumsum(n_leaves)]))
         self.d_reps = u32(reps)
         self.d_m, self.d_strata = u32(m), u32(strata)
         self.d_key = u32(rng.integers(0, 1 << 32, E, dtype=np.uint64))
-        self.d_adapt3 = mi.Bool(np.asarray(adapt_dim) == 3)
+        self.d_adapt3 = jit(mi.Bool, np.asarray(adapt_dim) == 3)
         self.d_lev, self.d_ix, self.d_iy = u32(tree.lev[leaves]), u32(tree.ix[leaves]), \
             u32(tree.iy[leaves])
 
@@ -1116,11 +1118,11 @@ class Rexes:
         self.E_direct = self.E_direct_classes[:, 0]
         self.E_indirect = self.E_indirect_classes[:, 0]
         pad = np.zeros(1)
-        self.d_child = mi.UInt32(np.append(child, LEAF).astype(np.uint32))
-        self.d_area = mi.Float(np.append(self.area, pad).astype(np.float32))
-        self.d_E_direct = mi.Float(
+        self.d_child = jit(mi.UInt32, np.append(child, LEAF).astype(np.uint32))
+        self.d_area = jit(mi.Float, np.append(self.area, pad).astype(np.float32))
+        self.d_E_direct = jit(mi.Float, 
             np.append(self.E_direct_classes.ravel(), np.zeros(3)).astype(np.float32))
-        self.d_E_indirect = mi.Float(
+        self.d_E_indirect = jit(mi.Float, 
             np.append(self.E_indirect_classes.ravel(), np.zeros(3)).astype(np.float32))
 
     # -- numpy views ----------------------------------------------------------------------------
@@ -1274,8 +1276,8 @@ def _probe_open(scene, tables, node_rex, level, ix, iy, nodes, rng, m):
         sel = np.nonzero((shapes == s_idx) & ~is_tri)[0]
         try:
             si = tables.shapes[int(s_idx)].eval_parameterization(
-                mi.Point2f(mi.Float(u[sel].astype(np.float32)),
-                           mi.Float(v[sel].astype(np.float32))))
+                jit(mi.Point2f, jit(mi.Float, u[sel].astype(np.float32)),
+                           jit(mi.Float, v[sel].astype(np.float32))))
             dr.eval(si.p, si.n, si.t)
         except Exception:  # a shape without a parameterisation: leave its buckets open
             continue
@@ -1296,8 +1298,8 @@ def _probe_open(scene, tables, node_rex, level, ix, iy, nodes, rng, m):
     rays = 0
     for d in (n, tan, -tan):
         rays += int(np.count_nonzero(enclosed))
-        ray = mi.Ray3f(mi.Point3f(*(mi.Float(origin[:, c].astype(np.float32)) for c in range(3))),
-                       mi.Vector3f(*(mi.Float(d[:, c].astype(np.float32)) for c in range(3))))
+        ray = mi.Ray3f(mi.Point3f(*(jit(mi.Float, origin[:, c].astype(np.float32)) for c in range(3))),
+                       mi.Vector3f(*(jit(mi.Float, d[:, c].astype(np.float32)) for c in range(3))))
         si = scene.ray_intersect(ray, mi.Bool(enclosed))
         # only the back of a one-sided surface walls a point in: a two-sided or transmissive
         # BSDF's normal says nothing about inside and outside (a room of two-sided walls whose
@@ -1338,10 +1340,10 @@ def quadtree_cells(rex, u, v, bits: int):
     quadrant qx + 2·qy that :meth:`Rexes.descend` takes there. Computed by Dr.Jit: millions of
     records (6.8 M on the Cornell box at 128²) are a vectorised kernel's work, not numpy's."""
     n = 1 << bits
-    qx = mi.UInt64(dr.clip(dr.floor(mi.Float64(mi.Float(u)) * n), 0, n - 1))
-    qy = mi.UInt64(dr.clip(dr.floor(mi.Float64(mi.Float(v)) * n), 0, n - 1))
+    qx = mi.UInt64(dr.clip(dr.floor(mi.Float64(jit(mi.Float, u)) * n), 0, n - 1))
+    qy = mi.UInt64(dr.clip(dr.floor(mi.Float64(jit(mi.Float, v)) * n), 0, n - 1))
     morton = _spread_bits(qx) | (_spread_bits(qy) << 1)
-    return qx, qy, (mi.UInt64(mi.UInt32(rex)) << (2 * bits)) | morton
+    return qx, qy, (mi.UInt64(jit(mi.UInt32, rex)) << (2 * bits)) | morton
 
 
 def record_caps(tables, cap, rex, qx, qy, bits: int, max_level: int):
@@ -1353,7 +1355,7 @@ def record_caps(tables, cap, rex, qx, qy, bits: int, max_level: int):
     drop = bits - size_level
     cell = mi.UInt32(dr.gather(mi.UInt32, tables.d_size_offset, r)) + mi.UInt32(
         ((qy >> drop) << size_level) | (qx >> drop))
-    return dr.minimum(dr.gather(mi.Int32, mi.Int32(np.asarray(cap, np.int32)), cell), max_level)
+    return dr.minimum(dr.gather(mi.Int32, jit(mi.Int32, np.asarray(cap, np.int32)), cell), max_level)
 
 
 def _run_max(values, lo, hi):
@@ -1379,7 +1381,7 @@ def sort_records(tables, records, cap, bits: int, max_level: int):
     from them depends on it."""
     if len(records["rex"]) == 0:
         return mi.UInt32(), np.zeros(0, np.uint64), np.zeros(0, np.int16)
-    rex = mi.UInt32(records["rex"])
+    rex = jit(mi.UInt32, records["rex"])
     qx, qy, d_keys = quadtree_cells(rex, records["u"], records["v"], bits)
     d_cap = record_caps(tables, cap, rex, qx, qy, bits, max_level)
     dr.eval(d_keys, d_cap)
@@ -1408,13 +1410,13 @@ def deposit(records, order, sorted_leaf, n_nodes: int, classes: int, max_depth: 
     fmax = float(flux_in.max())
     k = min(32, 52 - int(n_rec).bit_length())
     quantum = fmax / 2.0**k if fmax > 0 and np.isfinite(fmax) else 1.0
-    depth = dr.gather(mi.UInt32, mi.UInt32(records["depth"].astype(np.uint32)), order)
-    bins = mi.UInt32(np.asarray(sorted_leaf, np.uint32)) * (2 * classes)
+    depth = dr.gather(mi.UInt32, jit(mi.UInt32, records["depth"].astype(np.uint32)), order)
+    bins = jit(mi.UInt32, np.asarray(sorted_leaf, np.uint32)) * (2 * classes)
     if max_depth >= 0:
         c0 = dr.clip(mi.Int32(max_depth - 2) - mi.Int32(depth), 0, classes - 1)
         bins += 2 * mi.UInt32(c0)
     bins += dr.select(depth > 0, 1, 0)
-    flat = mi.Float(np.ascontiguousarray(flux_in, np.float32).ravel())
+    flat = jit(mi.Float, np.ascontiguousarray(flux_in, np.float32).ravel())
     totals = [dr.zeros(mi.Float64, len(sums)) for _ in range(3)]
     for c in range(3):
         quanta = dr.round(mi.Float64(dr.gather(mi.Float, flat, order * 3 + c)) / quantum)

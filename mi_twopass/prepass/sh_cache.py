@@ -49,7 +49,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import sh
-from ..host_arrays import columns
+from ..host_arrays import columns, jit
 from ..scene.bounds import scene_diagonal
 from ..scene.patches import build_patches
 from ..seeds import hash31
@@ -108,7 +108,7 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     v = ((iy.ravel() + rng.random(w * h)) / h).astype(np.float32)
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(dr.opaque(mi.UInt32, hash31(seed, 2)), w * h)  # literal: kernels per seed
-    ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(mi.Float(u), mi.Float(v)),
+    ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(jit(mi.Float, u), jit(mi.Float, v)),
                                mi.Point2f(0.5, 0.5))
     ctx = mi.BSDFContext()
     active = dr.full(mi.Bool, True, w * h)
@@ -365,8 +365,8 @@ class ClusterGrid:
     def tables(self):
         """Dr.Jit copies: ``lo``, ``inv_cell``, ``res`` (Python tuples, constant per prepass)
         and ``start``/``ids`` (``mi.UInt32``)."""
-        return dict(start=mi.UInt32(self.cell_start.astype(np.uint32)),
-                    ids=mi.UInt32(self.cell_ids.astype(np.uint32)))
+        return dict(start=jit(mi.UInt32, self.cell_start.astype(np.uint32)),
+                    ids=jit(mi.UInt32, self.cell_ids.astype(np.uint32)))
 
     def cell_index(self, x, t):
         """Dr.Jit: the cell of ``x`` (clamped to the grid); ``t`` the tables of :meth:`tables`
@@ -420,9 +420,9 @@ class RadianceCache:
         """Dr.Jit copies of the field and its grid, built on first use and kept (first use
         outside symbolic loops: the prepass builds them, through :func:`build_radiance_cache`).
         Grid constants are opaque, so a new prepass does not recompile the render kernels."""
-        t = dict(center=mi.Float(self.center.astype(np.float32).ravel()),
-                 sigma=mi.Float(self.sigma.astype(np.float32)),
-                 S=mi.Float(self.coeffs.astype(np.float32).ravel()))
+        t = dict(center=jit(mi.Float, self.center.astype(np.float32).ravel()),
+                 sigma=jit(mi.Float, self.sigma.astype(np.float32)),
+                 S=jit(mi.Float, self.coeffs.astype(np.float32).ravel()))
         if self.count:
             g = self.grid
             t.update(g.tables())
@@ -567,7 +567,7 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     t = np.cross(nn, s)
     d = (r * np.cos(phi))[:, None] * s + (r * np.sin(phi))[:, None] * t + z[:, None] * nn
     eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(o).max()
-    f = lambda a: mi.Vector3f(*(mi.Float(a[:, k].astype(np.float32)) for k in range(3)))  # noqa
+    f = lambda a: mi.Vector3f(*(jit(mi.Float, a[:, k].astype(np.float32)) for k in range(3)))  # noqa
     ray = mi.Ray3f(mi.Point3f(f(o + eps * nn)), f(d))
     si = scene.ray_intersect(ray)
     # only a cached surface sends B_r/π: on any other the render traces the path on

@@ -109,7 +109,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..host_arrays import columns, vectors
+from ..host_arrays import columns, jit, vectors
 from ..progress import progress as progress_bar
 from ..seeds import numpy_rng, splitmix64
 from ..tables import Tables
@@ -513,21 +513,21 @@ def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_
         n_emitter_reg=n_reg, n_patch_slots=N + 1,
         emitter_source=mi.UInt32(emitter_source), patch_source=mi.UInt32(patch_source),
         center=_dr3(src.center, mi.Point3f), axis=_dr3(src.axis, mi.Vector3f),
-        radius=mi.Float(_pad(src.radius, np.float32)),
-        intensity=mi.Float(_pad(src.intensity, np.float32)),
+        radius=jit(mi.Float, _pad(src.radius, np.float32)),
+        intensity=jit(mi.Float, _pad(src.intensity, np.float32)),
         infinite=mi.Bool(_pad(src.infinite, bool, False)),
         # packed per-source records for estimate(): one 4-wide (packet) gather each
         sphere=mi.Float(_packed4(src.center, src.radius)),
         axis_intensity=mi.Float(_packed4(src.axis, src.intensity)),
-        flags=mi.UInt32(_pad(_flags(src), np.uint32)),
-        in_delta=mi.Bool(_pad(np.isin(np.arange(S), src.delta_ids), bool, False)),
-        in_emitters=mi.Bool(_pad(np.isin(np.arange(S), src.emitter_ids), bool, False)),
+        flags=jit(mi.UInt32, _pad(_flags(src), np.uint32)),
+        in_delta=jit(mi.Bool, _pad(np.isin(np.arange(S), src.delta_ids), bool, False)),
+        in_emitters=jit(mi.Bool, _pad(np.isin(np.arange(S), src.emitter_ids), bool, False)),
         is_patch=mi.Bool(_pad(src.kind == KIND_PATCH, bool, False)),
-        emitter_index=mi.UInt32(_pad(np.maximum(src.emitter_index, 0), np.uint32)),
-        patch_id=mi.UInt32(_pad(src.patch_id, np.uint32, N)),
-        delta_ids=mi.UInt32(_pad(src.delta_ids, np.uint32, INVALID)),
+        emitter_index=jit(mi.UInt32, _pad(np.maximum(src.emitter_index, 0), np.uint32)),
+        patch_id=jit(mi.UInt32, _pad(src.patch_id, np.uint32, N)),
+        delta_ids=jit(mi.UInt32, _pad(src.delta_ids, np.uint32, INVALID)),
         n_delta=int(src.delta_ids.size),
-        emitters_ids=mi.UInt32(_pad(src.emitter_ids, np.uint32, INVALID)),
+        emitters_ids=jit(mi.UInt32, _pad(src.emitter_ids, np.uint32, INVALID)),
         n_emitters=int(src.emitter_ids.size), count=S)
     return src
 
@@ -919,7 +919,7 @@ def cell_weights(sources: Sources, lists_l, lists_s, lists_g, points, normals, p
     value = estimate_record(
         mi.Vector4f(*_dr_cols(np.column_stack([sources.center[sid], sources.radius[sid]]))),
         mi.Vector4f(*_dr_cols(np.column_stack([sources.axis[sid], sources.intensity[sid]]))),
-        mi.UInt32(_flags(sources)[sid].astype(np.uint32)),
+        jit(mi.UInt32, _flags(sources)[sid].astype(np.uint32)),
         mi.Point3f(*_dr_cols(points[j_idx])), mi.Vector3f(*_dr_cols(normals[j_idx])),
         mi.Bool(False), mi.Float(0.0))
     value = np.asarray(value, dtype=np.float64)
@@ -941,7 +941,7 @@ def cell_weights(sources: Sources, lists_l, lists_s, lists_g, points, normals, p
 
 def _dr_cols(a):
     """Columns of a numpy (n, k) array as Dr.Jit Floats."""
-    return [mi.Float(np.ascontiguousarray(a[:, i], dtype=np.float32)) for i in range(a.shape[1])]
+    return [jit(mi.Float, np.ascontiguousarray(a[:, i], dtype=np.float32)) for i in range(a.shape[1])]
 
 
 @dataclass(frozen=True)
@@ -1053,8 +1053,8 @@ def _trace_visibility(scene, sources, patches, pts, pt_off, pair_list, pair_src,
     pair's cell to random points of its source. Returns (reached per ray (numpy bool), rays)."""
     n = pair_list.size * VIS_ROUND
     pair = dr.arange(mi.UInt32, n) // VIS_ROUND
-    lid = dr.gather(mi.UInt32, mi.UInt32(pair_list.astype(np.uint32)), pair)
-    sid = dr.gather(mi.UInt32, mi.UInt32(pair_src.astype(np.uint32)), pair)
+    lid = dr.gather(mi.UInt32, jit(mi.UInt32, pair_list.astype(np.uint32)), pair)
+    sid = dr.gather(mi.UInt32, jit(mi.UInt32, pair_src.astype(np.uint32)), pair)
     rng = _rng(n, seed ^ (round_index * 0x9E3779B1), _SALT_VIS, first)
     off = dr.gather(mi.UInt32, pt_off, lid)
     cnt = dr.gather(mi.UInt32, pt_off, lid + 1) - off
@@ -1107,10 +1107,10 @@ def can_light(sources: Sources, pair_list, pair_src, pts, pt_off, chunk=1 << 20)
     if pair_list.size == 0 or P.shape[0] == 0:
         return out
     p_tab, n_tab = _dr3(P, mi.Point3f), _dr3(N, mi.Vector3f)
-    off = mi.UInt32(np.asarray(pt_off, np.uint32))
+    off = jit(mi.UInt32, np.asarray(pt_off, np.uint32))
     for a in range(0, pair_list.size, chunk):
-        lid = mi.UInt32(pair_list[a:a + chunk].astype(np.uint32))
-        sid = mi.UInt32(pair_src[a:a + chunk].astype(np.uint32))
+        lid = jit(mi.UInt32, pair_list[a:a + chunk].astype(np.uint32))
+        sid = jit(mi.UInt32, pair_src[a:a + chunk].astype(np.uint32))
         start = dr.gather(mi.UInt32, off, lid)
         end = dr.gather(mi.UInt32, off, lid + 1)
 
@@ -1235,7 +1235,7 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
 
     # self-refining visibility, one wavefront per round (chunked)
     pts_dr = _dr3(points, mi.Point3f)
-    pt_off_dr = mi.UInt32(point_offsets.astype(np.uint32))
+    pt_off_dr = jit(mi.UInt32, point_offsets.astype(np.uint32))
     patches = solution.patches if solution is not None else None
     counter = {"rays": 0, "first": 0}
     chunk = max(1, settings.batch_rays // VIS_ROUND)
@@ -1272,17 +1272,17 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
                                      point_offsets)
     grid._tables = Tables(
         cell_list=mi.UInt32(cell_list),
-        offsets=mi.UInt32(offsets.astype(np.uint32)),
-        source=mi.UInt32(_pad(lists_s, np.uint32, INVALID)),
-        g=mi.Float(_pad(lists_g, np.float32)),
+        offsets=jit(mi.UInt32, offsets.astype(np.uint32)),
+        source=jit(mi.UInt32, _pad(lists_s, np.uint32, INVALID)),
+        g=jit(mi.Float, _pad(lists_g, np.float32)),
         # per-entry source records for the list sweep (intensity × g)
         entry_sphere=mi.Float(_packed4(sources.center[lists_s], sources.radius[lists_s])),
         entry_axis_gI=mi.Float(_packed4(sources.axis[lists_s],
                                         sources.intensity[lists_s] * lists_g)),
-        entry_flags=mi.UInt32(_pad(_flags(sources)[lists_s], np.uint32)),
+        entry_flags=jit(mi.UInt32, _pad(_flags(sources)[lists_s], np.uint32)),
         # the per-cell selection (cell_weights): entry probabilities, CDFs, list sums
-        cell_prob=mi.Float(_pad(prob, np.float32)), cell_cdf=mi.Float(_pad(cdf, np.float32)),
-        list_W=mi.Float(_pad(W_cell.astype(np.float32), np.float32)))
+        cell_prob=jit(mi.Float, _pad(prob, np.float32)), cell_cdf=jit(mi.Float, _pad(cdf, np.float32)),
+        list_W=jit(mi.Float, _pad(W_cell.astype(np.float32), np.float32)))
     lengths = np.diff(offsets)
     grid.stats = dict(
         grid_dims=[int(v) for v in dims], cell_size=float(h), cells_with_lists=int(L),

@@ -50,7 +50,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..host_arrays import columns, vectors
+from ..host_arrays import columns, jit, vectors
 from ..seeds import numpy_rng
 from ..tables import Tables
 from .lambertian import is_lambertian
@@ -442,7 +442,7 @@ class Patches:
         mask = np.asarray(mask, dtype=bool)
         self.is_uneven = mask if self.is_uneven is None else (self.is_uneven | mask)
         self.is_diffuse = self.is_diffuse & ~mask
-        self._tables.replace("patch_is_diffuse", mi.Bool(
+        self._tables.replace("patch_is_diffuse", jit(mi.Bool, 
             np.append(self.is_diffuse.astype(bool), False)))
 
     def gather(self, name, patch_ids, active=True):
@@ -833,12 +833,12 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     ray = mi.Ray3f(Pd + Nd * delta, -Nd)
     pi = dr.zeros(mi.PreliminaryIntersection3f, n)
     pi.t = delta + dr.zeros(mi.Float, n)
-    pi.prim_uv = mi.Point2f(mi.Float(bary[:, 0].astype(np.float32)),
-                            mi.Float(bary[:, 1].astype(np.float32)))
-    pi.prim_index = mi.UInt32(prim.astype(np.uint32))
-    pi.shape = dr.gather(mi.ShapePtr, scene.shapes_dr(), mi.UInt32(dr_index.astype(np.uint32)))
+    pi.prim_uv = jit(mi.Point2f, jit(mi.Float, bary[:, 0].astype(np.float32)),
+                            jit(mi.Float, bary[:, 1].astype(np.float32)))
+    pi.prim_index = jit(mi.UInt32, prim.astype(np.uint32))
+    pi.shape = dr.gather(mi.ShapePtr, scene.shapes_dr(), jit(mi.UInt32, dr_index.astype(np.uint32)))
     si = pi.shape.compute_surface_interaction(ray, pi, mi.RayFlags.All, mi.Bool(True))
-    wz = mi.Float(wi_z.astype(np.float32))
+    wz = jit(mi.Float, wi_z.astype(np.float32))
     si.wi = mi.Vector3f(0.0, 0.0, wz)
     bsdf = si.bsdf()
     rho = bsdf.eval_diffuse_reflectance(si, True)
@@ -892,7 +892,7 @@ def _probe_split(scene, P, side_normal, patch_of, enclosed, delta, N):
     j = np.nonzero(same)[0]
     if j.size == 0:
         return split, 0
-    ja = mi.UInt32(j.astype(np.uint32))
+    ja = jit(mi.UInt32, j.astype(np.uint32))
     jb = ja + 1
     a, b = dr.gather(mi.Point3f, P, ja), dr.gather(mi.Point3f, P, jb)
     lift = delta + SPLIT_LIFT * dr.norm(b - a)
@@ -925,7 +925,7 @@ def _probe_enclosed(scene, P, n, delta, rng):
     t1 = dr.cross(n, a)
     t1 *= dr.rcp(dr.maximum(dr.norm(t1), 1e-30))
     t2 = dr.cross(n, t1)
-    phi = mi.Float((rng.random(m) * (2 * np.pi)).astype(np.float32))
+    phi = jit(mi.Float, (rng.random(m) * (2 * np.pi)).astype(np.float32))
     tangent = dr.cos(phi) * t1 + dr.sin(phi) * t2
 
     origin = P + n * delta
@@ -1031,24 +1031,24 @@ def _make_tables(patches, parts, tri_v, tri_p, tri_n):
         face_offset=mi.UInt32(face_offset), grid_base=mi.UInt32(grid_base),
         grid_nu=mi.UInt32(grid_nu), grid_nv=mi.UInt32(grid_nv),
         face_patch=mi.UInt32(face_patch), face_sub=mi.UInt32(face_sub),
-        sub_res=mi.UInt32(np.maximum(sub_res, 1)), sub_v0=pt(sub_v0, mi.Point3f),
+        sub_res=jit(mi.UInt32, np.maximum(sub_res, 1)), sub_v0=pt(sub_v0, mi.Point3f),
         sub_g1=pt(sub_g1, mi.Vector3f), sub_g2=pt(sub_g2, mi.Vector3f),
         tri_cdf=mi.Float(f32(cdf, (1,))),
         tri_v0=pt(tri_v32[:, 0], mi.Point3f),
         tri_e1=pt(tri_v32[:, 1] - tri_v32[:, 0], mi.Vector3f),
         tri_e2=pt(tri_v32[:, 2] - tri_v32[:, 0], mi.Vector3f),
         tri_n=pt(tri_n, mi.Vector3f),
-        patch_tri_start=mi.UInt32(pad(start.astype(np.uint32))),
-        patch_tri_count=mi.UInt32(pad(count.astype(np.uint32))),
-        patch_inv_tri_area=mi.Float(pad(inv_area.astype(np.float32))),
+        patch_tri_start=jit(mi.UInt32, pad(start.astype(np.uint32))),
+        patch_tri_count=jit(mi.UInt32, pad(count.astype(np.uint32))),
+        patch_inv_tri_area=jit(mi.Float, pad(inv_area.astype(np.float32))),
     )
 
     def vec(x, cls):  # with the zero entry at N
         return vectors(np.vstack([np.asarray(x, np.float64), np.zeros((1, 3))]), cls)
 
     t.update(
-        patch_is_diffuse=mi.Bool(pad(patches.is_diffuse.astype(bool), False)),
-        patch_area=mi.Float(pad(patches.area.astype(np.float32))),
+        patch_is_diffuse=jit(mi.Bool, pad(patches.is_diffuse.astype(bool), False)),
+        patch_area=jit(mi.Float, pad(patches.area.astype(np.float32))),
         patch_center=vec(patches.center, mi.Point3f),
         patch_normal=vec(patches.normal, mi.Vector3f),
         patch_albedo=vec(patches.albedo, mi.Color3f),
