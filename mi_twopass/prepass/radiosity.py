@@ -61,7 +61,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import units
-from ..host_arrays import jit
+from ..host_arrays import columns, jit
 from ..progress import progress as progress_bar
 from ..rays import spawn_ray
 from ..scene.bounds import scene_bounds
@@ -204,6 +204,15 @@ def _sample_emission(scene, bounds, rng, active, guide=None):
     return ray.o, ray.d, mi.Color3f(w), cell
 
 
+def _channel_mean(c):
+    """The mean of a colour's three channels, per lane. Not ``dr.mean``: on a Color3f, Dr.Jit
+    1.5 computes it as the sum times the array's width over three times its width, two
+    literals that made the particle kernel new for every batch size (the emission guide's
+    pilots: a kernel per seed on scenes_xml/mixed_room.xml, ``tools/kernel_recompiles.py
+    --first-seed``)."""
+    return (c.x + c.y + c.z) * (1.0 / 3.0)
+
+
 def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None,
                  guide=None, importance=None, bounds=None, deposit_flux=True):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, element deposits (M+1, 3)
@@ -233,7 +242,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         else None
     dr.eval(o, d, flux, rng)
 
-    flux_np = np.array(flux, dtype=np.float64).reshape(3, -1)
+    # columns: np.array of a Color3f copies it in a kernel with its width as a literal, and
+    # a batch's width follows the seed (guided particle counts): a kernel per render
+    flux_np = columns(flux).T
     emitted = flux_np.sum(axis=1)
     peak = float(flux_np.max()) if flux_np.size else 0.0
     result = dict(emitted=emitted, absorbed=np.zeros(3), escaped=np.zeros(3),
@@ -296,20 +307,22 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         if deposit_flux:
             offset = (si.p - recv.gather("center", rid, at_recv)) \
                 * dr.gather(mi.Float, recv_inv_r, rid, at_recv)
-            deposit(target_m, rid, offset * dr.mean(flux), at_recv)
+            deposit(target_m, rid, offset * _channel_mean(flux), at_recv)
             # the normal of the receiver's side (the side the particle arrives on)
             side_n = dr.select(dr.dot(ray.d, si.n) < 0, si.n, -si.n)
-            deposit(target_nrm, rid, side_n * dr.mean(flux), at_recv)
+            deposit(target_nrm, rid, side_n * _channel_mean(flux), at_recv)
             dr.scatter_reduce(dr.ReduceOp.Add, target_n, mi.UInt32(1), rid, at_recv,
                               mode=_DEPOSIT_MODE)
-            w2 = dr.clip(dr.round(mi.Float64(dr.square(dr.mean(flux))) * inv_quantum_w2), 0.0,
+            w2 = dr.clip(dr.round(mi.Float64(dr.square(_channel_mean(flux))) * inv_quantum_w2), 0.0,
                          _FIXED_CLAMP)
             dr.scatter_reduce(dr.ReduceOp.Add, target_w2, mi.Int64(w2), rid, at_recv,
                               mode=_DEPOSIT_MODE)
         if importance_t is not None:
+            # each lane adds to its own slot; Expand (the LLVM default for a small target)
+            # would bake the batch's width into the kernel, a kernel per guide pilot size
             dr.scatter_reduce(dr.ReduceOp.Add, score,
-                              dr.mean(flux) * dr.gather(mi.Float, importance_t, rid, at_recv),
-                              lane, at_recv)
+                              _channel_mean(flux) * dr.gather(mi.Float, importance_t, rid, at_recv),
+                              lane, at_recv, mode=dr.ReduceMode.Direct)
 
         bsdf = si.bsdf(ray)
         u1 = rng.next_float32()
@@ -343,8 +356,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             label="radiosity_particles", mode="symbolic")
         dr.eval(o, d, flux, depth, rng, active, absorbed, escaped, lane, score)
         rays += int(dr.sum(mi.UInt64(depth))[0]) - depth_before
-        result["absorbed"] += np.array(absorbed, dtype=np.float64).reshape(3, -1).sum(axis=1)
-        result["escaped"] += np.array(escaped, dtype=np.float64).reshape(3, -1).sum(axis=1)
+        result["absorbed"] += columns(absorbed).sum(axis=0)
+        result["escaped"] += columns(escaped).sum(axis=0)
         start_depth += _CHUNK
         n_alive = int(dr.count(active)[0])
         if n_alive == 0:
@@ -357,7 +370,7 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         absorbed = dr.zeros(mi.Color3f, n_alive)
         escaped = dr.zeros(mi.Color3f, n_alive)
         if start_depth >= max_bounces:
-            result["truncated"] += np.array(flux, dtype=np.float64).reshape(3, -1).sum(axis=1)
+            result["truncated"] += columns(flux).sum(axis=0)
             break
 
     result["cell"] = np.asarray(cell, np.int64)
