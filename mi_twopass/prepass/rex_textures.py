@@ -138,6 +138,9 @@ EXPOSURE_PROBES = 4
 EXPOSURE_BATCH = 1 << 17
 #: delta / glossy bounces a pilot or size ray follows before giving up
 MAX_CHAIN = 16
+#: how the deposit's scatter-additions are compiled (:func:`deposit`): sorted records share bins
+#: within a packet, which Local pre-reduces
+_DEPOSIT_MODE = dr.ReduceMode.Local
 
 _BACK = int(mi.BSDFFlags.BackSide)
 #: analytic shapes whose (u, v) square has an exact area rule (bucket_area)
@@ -1418,9 +1421,14 @@ def deposit(records, order, sorted_leaf, n_nodes: int, classes: int, max_depth: 
     bins += dr.select(depth > 0, 1, 0)
     flat = jit(mi.Float, np.ascontiguousarray(flux_in, np.float32).ravel())
     totals = [dr.zeros(mi.Float64, len(sums)) for _ in range(3)]
+    # the quantum follows the photons and the bins' count the tree: as literals they made
+    # the kernel new for every seed (the LLVM default for a small target, ReduceMode.Expand,
+    # bakes its size in); the records come in key order, so a packet's lanes mostly share a
+    # bin, which Local pre-reduces
+    quantum_d = dr.opaque(mi.Float64, quantum)
     for c in range(3):
-        quanta = dr.round(mi.Float64(dr.gather(mi.Float, flat, order * 3 + c)) / quantum)
-        dr.scatter_reduce(dr.ReduceOp.Add, totals[c], quanta, bins)
+        quanta = dr.round(mi.Float64(dr.gather(mi.Float, flat, order * 3 + c)) / quantum_d)
+        dr.scatter_reduce(dr.ReduceOp.Add, totals[c], quanta, bins, mode=_DEPOSIT_MODE)
     dr.eval(totals)  # the three channels in one kernel
     for c in range(3):
         sums[:, c] = np.asarray(totals[c]) * quantum
