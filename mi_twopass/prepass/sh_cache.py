@@ -574,9 +574,12 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     valid = cached_surface(solution.patches, solution.elements, si, si.is_valid())
     L = solution.reflected_radiance(si, valid)
     L = dr.select(valid, L, 0.0)
-    dist = np.asarray(dr.select(si.is_valid(), si.t, np.inf))
-    L = np.asarray(L)
-    L = L.reshape(3, -1).T if L.shape[0] == 3 and L.ndim == 2 else L
+    dist = dr.select(si.is_valid(), si.t, np.inf)
+    dr.eval(dist, L)
+    dist = np.asarray(dist)
+    # columns: np.asarray of a Color3f interleaves it in a kernel with its width as a literal,
+    # and the width (clusters x rays) follows the seed: a kernel compiled for every render
+    L = columns(L)
     far = ~np.isfinite(dist) | (dist >= alpha)
     L = np.where(np.isfinite(L), L, 0.0)
     # one regularised least-squares fit per cluster, solved as a batch (eq. 4)
