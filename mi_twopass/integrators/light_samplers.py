@@ -34,6 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..host_arrays import jit
 from ..prepass.spike_grid import INVALID
 from ..rays import shadow_ray
 from ..scene.emission import has_infinite_emitters
@@ -81,7 +82,7 @@ def emitter_index_table(scene):
     regs = np.array(dr.reinterpret_array(mi.UInt32, scene.emitters_dr()), dtype=np.int64)
     table = np.full(int(regs.max()) + 1, INVALID, dtype=np.uint32)
     table[regs] = np.arange(len(emitters), dtype=np.uint32)
-    return mi.UInt32(table), len(emitters)
+    return jit(mi.UInt32, table), len(emitters)
 
 
 class LightSampler:
