@@ -10,9 +10,10 @@ The other way, ``mi.Float(numpy_array)`` on the LLVM backend maps the array's me
 copy, and Dr.Jit compiles a kernel that reads 64-byte-aligned memory apart from one that reads
 unaligned memory (``align 64`` against ``align 1`` in its IR). NumPy's allocations are aligned
 or not by chance, so such kernels were compiled again by chance: radiance_cache's prepass on
-veach-bidir at 256² spent 1.8–2.8 s of 2.7–3.6 s compiling 16–19 kernels in some builds, 0.75 s
-in the others (``tools/kernel_recompiles.py``). :func:`jit` hands Dr.Jit only 64-byte-aligned
-NumPy memory, so every kernel is the aligned one.
+veach-bidir at 256² spent 3.6–4.1 s of a 4.8–5.6 s build compiling 16–17 kernels in every
+build after the first of one process in four, against 0.75 s for a build that compiled none
+(``tools/kernel_recompiles.py``). :func:`jit` hands Dr.Jit only 64-byte-aligned NumPy memory,
+so every kernel is the aligned one.
 """
 from __future__ import annotations
 

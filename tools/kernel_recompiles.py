@@ -13,8 +13,10 @@ Found with it (session 16): mapped NumPy arrays. ``mi.Float(numpy_array)`` maps 
 memory without a copy, and Dr.Jit compiles a kernel reading a 64-byte-aligned array apart
 from one reading an unaligned one (``align 64`` against ``align 1`` in the IR). NumPy's
 allocations are aligned or not by chance, so radiance_cache's prepass on veach-bidir at 256²
-compiled 16–19 kernels again in some builds (1.8–2.8 s of compilation in a 2.7–3.6 s build,
-against 0.75 s for a build that compiled none).
+compiled 16–19 kernels again in some builds (1.8–4.1 s of compilation in a 2.7–5.6 s build,
+against 0.75 s for a build that compiled none). With ``--first-seed`` (session 16 too): values
+that follow the seed baked into kernels as literals (``dr.mean`` of a Color3f, ``np.array`` of
+one, scatter-adds in ``Expand`` mode, a quantum).
 """
 import argparse
 import difflib

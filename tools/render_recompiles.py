@@ -46,12 +46,14 @@ def main():
             t0 = time.perf_counter()
             try:
                 mi.render(scene, integrator=integrator, spp=a.spp, seed=a.first_seed + r).numpy()
-            except (ValueError, NotImplementedError, RuntimeError) as err:  # RuntimeError: mi.render's wrapper
+            # RuntimeError: mi.render's wrapper around an integrator's refusal
+            except (ValueError, NotImplementedError, RuntimeError) as err:
                 lines.append(f"refused: {' '.join(str(err).split())[:60]}")
                 break
             dr.sync_thread()
             seconds = time.perf_counter() - t0
-            compiled = [k for k in dr.kernel_history() if "ir" in k and not k.get("cache_hit", True)]
+            compiled = [k for k in dr.kernel_history()
+                        if "ir" in k and not k.get("cache_hit", True)]
             ms = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in compiled)
             if r:
                 lines.append(f"render {r}: {seconds:.3f} s, {len(compiled)} compiled ({ms:.0f} ms)")

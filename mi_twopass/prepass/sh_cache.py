@@ -108,8 +108,8 @@ def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int
     v = ((iy.ravel() + rng.random(w * h)) / h).astype(np.float32)
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(dr.opaque(mi.UInt32, hash31(seed, 2)), w * h)  # literal: kernels per seed
-    ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(jit(mi.Float, u), jit(mi.Float, v)),
-                               mi.Point2f(0.5, 0.5))
+    ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5),
+                               mi.Point2f(jit(mi.Float, u), jit(mi.Float, v)), mi.Point2f(0.5, 0.5))
     ctx = mi.BSDFContext()
     active = dr.full(mi.Bool, True, w * h)
     found = dr.full(mi.Bool, False, w * h)
