@@ -21,8 +21,10 @@ Kernel counts (entries of type ``dr.KernelType.JIT``; Dr.Jit 1.5 marks each with
 ``cache_hit``, found in the in-memory or on-disk cache, and ``cache_disk``, found on disk):
 *launches* (every JIT kernel run), *unique* (distinct hashes), *compiled* (not found in either
 cache: LLVM compiled it, ``backend_time`` ms) and *from disk*. A warm run can still compile a
-few kernels: some of Mitsuba's kernels embed values that differ between processes (the render
-kernel of the same scene came out under two hashes in three processes), so they miss the cache.
+few kernels: a kernel that differs between processes misses the cache. Most of those were
+NumPy arrays mapped at an alignment that differed between processes, until session 16 handed
+Dr.Jit only aligned ones (:func:`mi_twopass.host_arrays.jit`); spike_gather still compiles one
+now and then (docs/results/prepass-cost-2026-11-27c).
 
 Written into the output folder: ``cold.json`` (machine, versions, command, and per integrator
 every run's numbers) and ``cold.md`` (:data:`COLUMNS`). Run time: per integrator three
