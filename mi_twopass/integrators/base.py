@@ -23,6 +23,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..prepass.radiosity import VL_CONTRAST, RadiositySettings
+from ..scene.bounds import scene_diagonal
+from ..scene.view import collect_shading_points, view_diagonal
 from .light_samplers import EmitterSampler
 from .pathtrace import by_component
 
@@ -442,6 +444,7 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         t0 = time.perf_counter()
         self.prepass_sensor = sensor
         try:
+            self.before_prepass(scene, self.prepass_seed(seed))
             structure = self.prepass(scene, self.prepass_seed(seed))
         finally:
             self.prepass_sensor = None
@@ -452,6 +455,10 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         self._prepass_time = elapsed
         self._prepass_stats = dict(self.prepass_stats(structure))
         return structure, elapsed
+
+    def before_prepass(self, scene, seed) -> None:
+        """Called by :meth:`ensure_prepass` just before :meth:`prepass`, with
+        ``prepass_sensor`` set: what the prepass and the render both read (nothing here)."""
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if isinstance(sensor, int):
@@ -544,11 +551,14 @@ class FarGatherIntegrator(TwoPassIntegrator):
        * - r_thresh
          - float
          - Gather-ray length below which the path is traced on (scene units). Default:
-           ``r_thresh_rel`` × the scene's bounding-box diagonal.
+           ``r_thresh_rel`` × the diagonal of what the camera sees (:meth:`view_diagonal`).
        * - r_thresh_rel
          - float, default 0.1
-         - Default ``r_thresh`` as a fraction of the bounding-box diagonal.
+         - Default ``r_thresh`` as a fraction of that diagonal.
     """
+
+    #: camera rays whose first non-delta hits give the view's extent (:meth:`view_diagonal`)
+    VIEW_POINTS = 4096
 
     #: defaults of (max_patches, particles_per_patch, elements_per_patch)
     RADIOSITY_DEFAULTS = (1024, 256, 16)
@@ -560,6 +570,7 @@ class FarGatherIntegrator(TwoPassIntegrator):
         self.radiosity = read_radiosity_budget(props, *self.RADIOSITY_DEFAULTS)
         self.vl_threshold = read_float(props, "vl_threshold", 0.5, minimum=0.0, strict=True)
         self.vl_contrast = read_float(props, "vl_contrast", VL_CONTRAST, minimum=0.0)
+        self._view_diagonal = None  # set by before_prepass for the scene and camera built for
 
     @property
     def far_gather_exact(self) -> bool:
@@ -574,14 +585,39 @@ class FarGatherIntegrator(TwoPassIntegrator):
         """``vl_threshold``, or ∞ (no virtual luminaires) where the far gather is off."""
         return self.vl_threshold if self.far_gather_exact else math.inf
 
+    def view_diagonal(self, scene, seed=0) -> float:
+        """The diagonal of the bounding box of the first non-delta hits of ``VIEW_POINTS``
+        camera rays of ``prepass_sensor`` (:func:`mi_twopass.scene.view.collect_shading_points`),
+        else (no sensor, no hit) of the scene's geometry.
+
+        The scale of the gather: r_thresh separates the near light that is path traced from the
+        far light read from the radiosity elements. Scaled by the scene's bounds, a room seen
+        through its own walls got the r_thresh of the street or ground plane around it
+        (scenes_xml/window_interior.xml: 2.08 m in a 6 m room, with the camera's view 7.7 m
+        across), and traced on most of its gather rays."""
+        fallback = scene_diagonal(scene)
+        sensor = self.prepass_sensor
+        if sensor is None:
+            return fallback
+        points, _, _ = collect_shading_points(scene, sensor, self.VIEW_POINTS, seed,
+                                              lambertian_only=False)
+        return view_diagonal(points, fallback)
+
+    def before_prepass(self, scene, seed) -> None:
+        self._view_diagonal = self.view_diagonal(scene, seed) if self.far_gather_exact else None
+
     def r_thresh(self, scene) -> float:
-        """``r_thresh``, else ``r_thresh_rel`` × the scene's bounding-box diagonal; ∞ (every
-        gather ray is traced on) with a finite ``max_depth`` (see :attr:`far_gather_exact`)."""
+        """``r_thresh``, else ``r_thresh_rel`` × the diagonal of what the camera sees
+        (:meth:`view_diagonal`, measured for the last prepass; the scene's bounds' before any);
+        ∞ (every gather ray is traced on) with a finite ``max_depth`` (see
+        :attr:`far_gather_exact`)."""
         if not self.far_gather_exact:
             return math.inf
         if self.r_thresh_abs is not None:
             return self.r_thresh_abs
-        return self.r_thresh_rel * float(dr.norm(scene.bbox().extents()))
+        diagonal = self._view_diagonal if self._view_diagonal is not None \
+            else scene_diagonal(scene)
+        return self.r_thresh_rel * diagonal
 
 
 def read_radiosity_budget(props, max_patches=1024, particles_per_patch=256,

@@ -52,6 +52,7 @@ from .. import sh
 from ..host_arrays import columns, jit
 from ..scene.bounds import scene_diagonal
 from ..scene.patches import build_patches
+from ..scene.view import collect_shading_points, view_diagonal
 from ..seeds import hash31
 from ..tables import Tables
 from .near_field import build_near_field, buried_triangles, split_near_triangles
@@ -60,8 +61,6 @@ from .radiosity import build as build_radiosity
 from .spike_grid import SpikeSettings, build_spike_prepass
 from ..scene.lambertian import LambertianShapes, lambertian_flags
 
-#: delta bounces followed when collecting shading points
-MAX_DELTA_BOUNCES = 16
 #: RBF weights exp(−|x−c|²/2σ²) below this are dropped (and the fallback is the nearest cluster)
 RBF_MIN_WEIGHT = 1e-4
 #: support radius of a cluster's RBF in units of its σ: exp(−s²/2) = RBF_MIN_WEIGHT
@@ -71,10 +70,6 @@ GRID_MAX_RES = 64
 #: cluster-grid cell size over the median RBF support radius: a lane's cell lists the clusters
 #: whose support touches the cell, about (1 + 0.87 × this)² × those that hold the point
 GRID_CELL_REL = 0.5
-
-
-def _count(mask) -> int:
-    return int(np.asarray(dr.count(mask)).reshape(-1)[0])
 
 
 def cached_surface(patches, elements, si, active=True):
@@ -92,72 +87,13 @@ def cached_surface(patches, elements, si, active=True):
     return ok
 
 
-def collect_shading_points(scene, sensor=None, max_points: int = 4096, seed: int = 0):
-    """First non-delta hits of camera rays through a jittered grid of ≤ ``max_points`` film
-    positions, kept where the surface is Lambertian (the only vertices that read the cache;
-    a camera ray that first meets a glossy, mixed or bump-mapped surface gives no point) → ``(p (n, 3),
-    normal (n, 3) facing the viewer, rays traced)`` numpy."""
-    if sensor is None:
-        sensor = scene.sensors()[0]
-    size = np.asarray(sensor.film().crop_size(), dtype=np.int64)
-    scale = min(1.0, float(np.sqrt(max_points / max(1, size[0] * size[1]))))
-    w, h = max(1, int(size[0] * scale)), max(1, int(size[1] * scale))
-    rng = np.random.default_rng(hash31(seed, 1))
-    iy, ix = np.mgrid[0:h, 0:w]
-    u = ((ix.ravel() + rng.random(w * h)) / w).astype(np.float32)
-    v = ((iy.ravel() + rng.random(w * h)) / h).astype(np.float32)
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(dr.opaque(mi.UInt32, hash31(seed, 2)), w * h)  # literal: kernels per seed
-    ray, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5),
-                               mi.Point2f(jit(mi.Float, u), jit(mi.Float, v)), mi.Point2f(0.5, 0.5))
-    ctx = mi.BSDFContext()
-    active = dr.full(mi.Bool, True, w * h)
-    found = dr.full(mi.Bool, False, w * h)
-    p = dr.zeros(mi.Point3f, w * h)
-    nrm = dr.zeros(mi.Vector3f, w * h)
-    eps = 1e-5 * scene_diagonal(scene)
-    rays = 0
-    n_active = w * h
-    lambertian = LambertianShapes(scene)
-    for _ in range(MAX_DELTA_BOUNCES):  # a few bounces over the whole batch, not per lane
-        rays += n_active
-        si = scene.ray_intersect(ray, active)
-        active &= si.is_valid()
-        bsdf = si.bsdf(ray)
-        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        stop = active & smooth
-        keep = stop & lambertian.at(si, stop)
-        n = dr.select(dr.dot(si.n, ray.d) > 0, -si.n, si.n)
-        p[keep] = si.p
-        nrm[keep] = n
-        found |= keep
-        bs, _ = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active & ~stop)
-        active &= ~stop & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        d = si.to_world(bs.wo)
-        side = dr.select(dr.dot(si.n, d) >= 0, 1.0, -1.0)
-        ray = mi.Ray3f(si.p + si.n * (side * (eps + 1e-6 * dr.max(dr.abs(si.p)))), d)
-        # one evaluation per bounce, of all the state: unevaluated, the next bounce's kernel
-        # would trace this one's rays again (veach-bidir's 16 bounces: 0.21 s, now 0.04 s)
-        dr.eval(p, nrm, found, ray, active)
-        n_active = _count(active)  # the rays of the next bounce
-        if n_active == 0:
-            break
-    keep = np.asarray(found)
-    P, N = columns(p)[keep], columns(nrm)[keep]
-    return P.astype(np.float64), N.astype(np.float64), rays
-
-
 def default_alpha(points, alpha_rel: float, fallback_diagonal: float) -> float:
     """§6: ``alpha_rel`` × the bounding-box diagonal of the camera's shading points ``points``
     (n, 3): the extent of what the camera sees, so a big unseen ground plane or sky dome does
     not inflate the near-field radius. ``fallback_diagonal`` (the scene's bounding-box diagonal)
-    where there are fewer than two distinct points. Scales with the scene."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    p = p[np.all(np.isfinite(p), axis=1)]
-    diag = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0))) if len(p) else 0.0
-    if not diag > 0.0:
-        diag = float(fallback_diagonal)
-    return float(alpha_rel) * max(diag, 1e-30)
+    where there are fewer than two distinct points (:func:`~mi_twopass.scene.view.view_diagonal`).
+    Scales with the scene."""
+    return float(alpha_rel) * max(view_diagonal(points, fallback_diagonal), 1e-30)
 
 
 @dataclass

@@ -277,3 +277,26 @@ def test_elements_resolve_the_far_gather():
         assert integ.stats["elements"] == (0 if k == 1 else sol.elements.count)
         assert np.all(np.isfinite(img))
     assert abs(means[16] - 1) < abs(means[1] - 1), means
+
+
+def test_default_r_thresh_follows_what_the_camera_sees():
+    """r_thresh_rel × the diagonal of what the camera sees (2 m quad, 3 m away), not of the
+    scene's bounds, which a 200 m ground plane behind the camera sets."""
+    scene = mi.load_dict({
+        "type": "scene",
+        "sensor": {"type": "perspective", "fov": 40,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0],
+                                                              up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+        "quad": {"type": "rectangle"},
+        "ground": {"type": "rectangle",
+                   "to_world": mi.ScalarTransform4f().translate([0, 0, 10]).scale(100)},
+        "light": {"type": "constant"},
+    })
+    integ = mi.load_dict({"type": "radiosity_gather", "max_patches": 64})
+    assert integ.r_thresh(scene) > 20.0  # no prepass yet: the scene's bounds (283 m)
+    mi.render(scene, integrator=integ, spp=1)
+    assert 0.1 * 2.0 < integ.r_thresh(scene) <= 0.1 * 2 * np.sqrt(2) + 1e-4
+    fixed = mi.load_dict({"type": "radiosity_gather", "max_patches": 64, "r_thresh": 5.0})
+    mi.render(scene, integrator=fixed, spp=1)
+    assert fixed.r_thresh(scene) == 5.0
