@@ -1350,7 +1350,7 @@ def build(scene, settings: SpikeSettings, radiosity: RadiositySettings, seed: in
                               vl_contrast=settings.vl_contrast,
                               e_high_rel=settings.e_high_rel, e_low_rel=settings.e_low_rel,
                               E_high=settings.E_high, E_low=settings.E_low, seed=seed,
-                              progress=progress)
+                              sensor=sensor, progress=progress)
     rad_stats = {k: v for k, v in rad.stats.items() if k != "virtual_luminaires"}
     pre.stats.update(rad_stats, spike_seconds=time.perf_counter() - t0 - rad.seconds)
     return pre

@@ -334,3 +334,21 @@ def test_stats_reuse_components_and_debug_views():
     rad = np.asarray(mi.render(scene, integrator=mi.load_dict(
         {"type": "spike_gather", **FAST, "debug": "radiosity"}), spp=1, seed=3))
     assert np.isfinite(rad).all() and rad.mean() > 0
+
+
+def test_lists_are_built_for_the_sensor_rendered():
+    """The lists go to the cells the *rendered* camera sees: two cameras, each looking down
+    into another end room of rooms_scene, get lists in disjoint cells (the prepass once built
+    them for the first sensor whatever the render's)."""
+    d = rooms_scene(n_rooms=3)
+    del d["sensor"]
+    d["left"] = sensor(16, origin=(-2.0, -0.3, 3.0), target=(-2.0, 0.0, 0.0), fov=40)
+    d["right"] = sensor(16, origin=(2.0, -0.3, 3.0), target=(2.0, 0.0, 0.0), fov=40)
+    scene = mi.load_dict(d)
+    cells = []
+    for which in (0, 1):
+        integrator = mi.load_dict({"type": "spike_gather", **FAST})
+        mi.render(scene, sensor=which, integrator=integrator, spp=1)
+        cells.append(set(integrator.structure.grid.list_cell.tolist()))
+    assert cells[0] and cells[1]
+    assert not cells[0] & cells[1]
