@@ -30,6 +30,18 @@ def columns(v, dtype=np.float64) -> np.ndarray:
     return np.stack([np.asarray(c, dtype=dtype).reshape(-1) for c in comps], axis=1)
 
 
+def component_sums(*vs) -> np.ndarray:
+    """The sums over lanes of each component of the k-component Dr.Jit arrays ``vs`` (n lanes
+    each, n ≥ 1), as a numpy ``(len(vs), k)`` float64 array: reduced in Dr.Jit and read back
+    together, not copied lane by lane into numpy (:func:`columns` then ``sum``: 3–5 ms per
+    262144-lane Color3f on two CPU cores)."""
+    sums = [dr.sum(v[i]) for v in vs for i in range(len(v))]
+    dr.eval(*sums)
+    k = len(vs[0]) if vs else 0
+    return np.array([float(np.asarray(x).reshape(-1)[0]) for x in sums],
+                    np.float64).reshape(len(vs), k)
+
+
 #: the alignment of the NumPy memory :func:`jit` hands to Dr.Jit (a cache line, AVX-512's vector)
 ALIGNMENT = 64
 

@@ -61,7 +61,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import units
-from ..host_arrays import columns, jit
+from ..host_arrays import component_sums, jit
 from ..progress import progress as progress_bar
 from ..rays import spawn_ray
 from ..scene.bounds import scene_bounds
@@ -242,11 +242,10 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         else None
     dr.eval(o, d, flux, rng)
 
-    # columns: np.array of a Color3f copies it in a kernel with its width as a literal, and
-    # a batch's width follows the seed (guided particle counts): a kernel per render
-    flux_np = columns(flux).T
-    emitted = flux_np.sum(axis=1)
-    peak = float(flux_np.max()) if flux_np.size else 0.0
+    # reduced in Dr.Jit: np.array of a Color3f copies it in a kernel with its width as a
+    # literal, and a batch's width follows the seed (guided particle counts)
+    emitted = component_sums(flux)[0]
+    peak = float(np.asarray(dr.max(dr.max(flux))).reshape(-1)[0]) if n else 0.0
     result = dict(emitted=emitted, absorbed=np.zeros(3), escaped=np.zeros(3),
                   truncated=np.zeros(3))
     deposits = np.zeros((N + 1, 3))
@@ -356,8 +355,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             label="radiosity_particles", mode="symbolic")
         dr.eval(o, d, flux, depth, rng, active, absorbed, escaped, lane, score)
         rays += int(dr.sum(mi.UInt64(depth))[0]) - depth_before
-        result["absorbed"] += columns(absorbed).sum(axis=0)
-        result["escaped"] += columns(escaped).sum(axis=0)
+        spent = component_sums(absorbed, escaped)
+        result["absorbed"] += spent[0]
+        result["escaped"] += spent[1]
         start_depth += _CHUNK
         n_alive = int(dr.count(active)[0])
         if n_alive == 0:
@@ -370,7 +370,7 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         absorbed = dr.zeros(mi.Color3f, n_alive)
         escaped = dr.zeros(mi.Color3f, n_alive)
         if start_depth >= max_bounces:
-            result["truncated"] += columns(flux).sum(axis=0)
+            result["truncated"] += component_sums(flux)[0]
             break
 
     result["cell"] = np.asarray(cell, np.int64)
