@@ -17,6 +17,7 @@ import drjit as dr
 import mitsuba as mi
 
 import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
+from mi_twopass.evaluation.harness import make_integrator
 from mi_twopass.scenefile import load_scene, scene_label
 
 PATH_SPP = 32
@@ -36,11 +37,12 @@ def path_seconds(scene, spp: int = PATH_SPP) -> float:
 
 
 def prepass_seconds(scene, name: str, builds: int = 2):
-    """The fastest of ``builds`` prepass builds of fresh ``name`` integrators, or the
+    """The fastest of ``builds`` prepass builds of fresh ``name`` integrators (a spec,
+    ``NAME[:key=value...]`` as the bench takes), or the
     integrator's refusal (``ValueError`` / ``NotImplementedError``) as a string."""
     best = None
     for _ in range(builds):
-        integrator = mi.load_dict({"type": name})
+        integrator = make_integrator(name)
         t0 = time.perf_counter()
         try:
             integrator.ensure_prepass(scene, 0, scene.sensors()[0])
