@@ -61,10 +61,8 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
        -
        - As every far-gather integrator (:class:`~mi_twopass.integrators.base.FarGatherIntegrator`):
          gather rays shorter than ``r_thresh`` trace on (default: 0.1 × the bounding-box
-         diagonal of what the camera sees, its rays' first non-delta hits; before 2026-11-27
-         of the whole scene, which on scenes_xml/window_interior.xml, a room inside a 14 m
-         ground plane, traced on gather rays up to 2.08 m instead of 0.77 m: equal-time ratio
-         against ``path`` at 256², radiosity_gather 3.18 → 4.84, spike_gather 3.67 → 5.13).
+         diagonal of what the camera sees, its rays' first non-delta hits:
+         :meth:`~mi_twopass.integrators.base.FarGatherIntegrator.view_diagonal`).
      * - max_patches
        - |int|
        - Patch budget of the prepass (default: 1024; on the Cornell box 4096 patches lowered
