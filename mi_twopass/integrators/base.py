@@ -538,6 +538,19 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
         return f"{type(self).__name__}[max_depth={self.max_depth}, component={self.component}]"
 
 
+#: the default r_thresh as a fraction of the diagonal of what the camera sees
+#: (:meth:`FarGatherIntegrator.view_diagonal`). 0.1 until session 17, when that diagonal
+#: replaced the scene's: with 0.05, at 256² (docs/results/far-gather-view-2026-11-27,
+#: ``bench`` with ``r_thresh_rel=0.05`` beside the default), radiosity_gather's equal-time ratio
+#: against ``path`` went 4.16 → 5.34 on window_interior, 3.68 → 4.84 on the office (time to
+#: relMSE 0.01 1.26 → 1.00 s, 4.11 → 5.19×), 1.20 → 1.92 on many_lights, 6.47 → 7.06 on
+#: mixed_room and 2.36 → 2.83 on the Cornell box; spike_gather's 3.48 → 4.21, 8.24 → 9.23
+#: and 2.05 → 2.37 on the last three. The relMSE at 512 spp was the same or lower everywhere,
+#: and ``check --renders 2`` at 128 px found the same bias parts on all nine scenes of
+#: scenes_xml/ and ../shared/scenes. 0.2 was worse (office 2.35×).
+R_THRESH_REL = 0.05
+
+
 class FarGatherIntegrator(TwoPassIntegrator):
     """An integrator whose gather rays longer than ``r_thresh`` read a radiosity prepass (GSII,
     Zimmerman & Shirley §2.5): reads ``r_thresh`` / ``r_thresh_rel`` and the prepass's budget
@@ -553,7 +566,7 @@ class FarGatherIntegrator(TwoPassIntegrator):
          - Gather-ray length below which the path is traced on (scene units). Default:
            ``r_thresh_rel`` × the diagonal of what the camera sees (:meth:`view_diagonal`).
        * - r_thresh_rel
-         - float, default 0.1
+         - float, default ``R_THRESH_REL`` (0.05)
          - Default ``r_thresh`` as a fraction of that diagonal.
     """
 
@@ -564,7 +577,7 @@ class FarGatherIntegrator(TwoPassIntegrator):
     RADIOSITY_DEFAULTS = (1024, 256, 16)
 
     def _read_far_gather_props(self, props):
-        self.r_thresh_rel = read_float(props, "r_thresh_rel", 0.1, minimum=0.0)
+        self.r_thresh_rel = read_float(props, "r_thresh_rel", R_THRESH_REL, minimum=0.0)
         self.r_thresh_abs = read_float(props, "r_thresh", 0.0, minimum=0.0) \
             if "r_thresh" in props else None
         self.radiosity = read_radiosity_budget(props, *self.RADIOSITY_DEFAULTS)
@@ -593,8 +606,9 @@ class FarGatherIntegrator(TwoPassIntegrator):
         The scale of the gather: r_thresh separates the near light that is path traced from the
         far light read from the radiosity elements. Scaled by the scene's bounds (before
         2026-11-27), a room seen through its own walls got the r_thresh of the street or ground
-        plane around it (scenes_xml/window_interior.xml: 2.08 m in a 6 m room, now 0.77 m) and
-        traced on most of its gather rays. At 256², two bench runs each side
+        plane around it (scenes_xml/window_interior.xml: 2.08 m in a 6 m room; 0.77 m at the same
+        fraction of the view, 0.39 m with :data:`R_THRESH_REL`) and traced on most of its
+        gather rays. At 256², two bench runs each side
         (docs/results/far-gather-view-2026-11-27): time to relMSE 0.01 on window_interior,
         radiosity_gather 1.49–1.67 → 1.21–1.24 s and spike_gather 1.45–1.57 → 1.08–1.27 s
         (`path`: 4.1–4.4 s), with the bias parts of ``check`` unchanged."""

@@ -60,7 +60,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
      * - r_thresh, r_thresh_rel
        -
        - As every far-gather integrator (:class:`~mi_twopass.integrators.base.FarGatherIntegrator`):
-         gather rays shorter than ``r_thresh`` trace on (default: 0.1 × the bounding-box
+         gather rays shorter than ``r_thresh`` trace on (default: 0.05 × the bounding-box
          diagonal of what the camera sees, its rays' first non-delta hits:
          :meth:`~mi_twopass.integrators.base.FarGatherIntegrator.view_diagonal`).
      * - max_patches

@@ -293,10 +293,11 @@ def test_default_r_thresh_follows_what_the_camera_sees():
                    "to_world": mi.ScalarTransform4f().translate([0, 0, 10]).scale(100)},
         "light": {"type": "constant"},
     })
+    from mi_twopass.integrators.base import R_THRESH_REL
     integ = mi.load_dict({"type": "radiosity_gather", "max_patches": 64})
-    assert integ.r_thresh(scene) > 20.0  # no prepass yet: the scene's bounds (283 m)
-    mi.render(scene, integrator=integ, spp=1)
-    assert 0.1 * 2.0 < integ.r_thresh(scene) <= 0.1 * 2 * np.sqrt(2) + 1e-4
+    assert integ.r_thresh(scene) == pytest.approx(R_THRESH_REL * 200 * np.sqrt(2), rel=1e-3)
+    mi.render(scene, integrator=integ, spp=1)  # no prepass yet above: the scene's bounds
+    assert R_THRESH_REL * 2.0 < integ.r_thresh(scene) <= R_THRESH_REL * 2 * np.sqrt(2) + 1e-4
     fixed = mi.load_dict({"type": "radiosity_gather", "max_patches": 64, "r_thresh": 5.0})
     mi.render(scene, integrator=fixed, spp=1)
     assert fixed.r_thresh(scene) == 5.0
