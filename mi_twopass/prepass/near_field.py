@@ -157,7 +157,7 @@ class NearField:
         abs_n = dr.abs(n)
         B_D = mi.Color3f(B_D)
         alpha = dr.opaque(mi.Float, float(alpha))  # changes per prepass: not a literal
-        of = jit(mi.Float, float(open_factor) if np.isfinite(open_factor) else 3e38)
+        of = mi.Float(float(open_factor) if np.isfinite(open_factor) else 3e38)
         B_C = mi.Color3f(0.0)
         visits = mi.UInt32(0)
         node = mi.UInt32(0)

@@ -1123,10 +1123,10 @@ class Rexes:
         pad = np.zeros(1)
         self.d_child = jit(mi.UInt32, np.append(child, LEAF).astype(np.uint32))
         self.d_area = jit(mi.Float, np.append(self.area, pad).astype(np.float32))
-        self.d_E_direct = jit(mi.Float, 
-            np.append(self.E_direct_classes.ravel(), np.zeros(3)).astype(np.float32))
-        self.d_E_indirect = jit(mi.Float, 
-            np.append(self.E_indirect_classes.ravel(), np.zeros(3)).astype(np.float32))
+        self.d_E_direct = jit(
+            mi.Float, np.append(self.E_direct_classes.ravel(), np.zeros(3)).astype(np.float32))
+        self.d_E_indirect = jit(
+            mi.Float, np.append(self.E_indirect_classes.ravel(), np.zeros(3)).astype(np.float32))
 
     # -- numpy views ----------------------------------------------------------------------------
     @property
@@ -1279,7 +1279,7 @@ def _probe_open(scene, tables, node_rex, level, ix, iy, nodes, rng, m):
         sel = np.nonzero((shapes == s_idx) & ~is_tri)[0]
         try:
             si = tables.shapes[int(s_idx)].eval_parameterization(
-                jit(mi.Point2f, jit(mi.Float, u[sel].astype(np.float32)),
+                mi.Point2f(jit(mi.Float, u[sel].astype(np.float32)),
                            jit(mi.Float, v[sel].astype(np.float32))))
             dr.eval(si.p, si.n, si.t)
         except Exception:  # a shape without a parameterisation: leave its buckets open

@@ -442,8 +442,8 @@ class Patches:
         mask = np.asarray(mask, dtype=bool)
         self.is_uneven = mask if self.is_uneven is None else (self.is_uneven | mask)
         self.is_diffuse = self.is_diffuse & ~mask
-        self._tables.replace("patch_is_diffuse", jit(mi.Bool, 
-            np.append(self.is_diffuse.astype(bool), False)))
+        self._tables.replace("patch_is_diffuse", jit(
+            mi.Bool, np.append(self.is_diffuse.astype(bool), False)))
 
     def gather(self, name, patch_ids, active=True):
         """Per-patch data by id in Dr.Jit: ``name`` ∈ {"area" (mi.Float), "center"
@@ -833,7 +833,7 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     ray = mi.Ray3f(Pd + Nd * delta, -Nd)
     pi = dr.zeros(mi.PreliminaryIntersection3f, n)
     pi.t = delta + dr.zeros(mi.Float, n)
-    pi.prim_uv = jit(mi.Point2f, jit(mi.Float, bary[:, 0].astype(np.float32)),
+    pi.prim_uv = mi.Point2f(jit(mi.Float, bary[:, 0].astype(np.float32)),
                             jit(mi.Float, bary[:, 1].astype(np.float32)))
     pi.prim_index = jit(mi.UInt32, prim.astype(np.uint32))
     pi.shape = dr.gather(mi.ShapePtr, scene.shapes_dr(), jit(mi.UInt32, dr_index.astype(np.uint32)))

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from mi_twopass.evaluation.statistics import block_z_scores
+from mi_twopass.integrators.base import R_THRESH_REL
 
 SCENES = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(__file__))), "scenes_xml")
 CORNELL = os.path.join(SCENES, "cornell_box.xml")
@@ -293,7 +294,6 @@ def test_default_r_thresh_follows_what_the_camera_sees():
                    "to_world": mi.ScalarTransform4f().translate([0, 0, 10]).scale(100)},
         "light": {"type": "constant"},
     })
-    from mi_twopass.integrators.base import R_THRESH_REL
     integ = mi.load_dict({"type": "radiosity_gather", "max_patches": 64})
     assert integ.r_thresh(scene) == pytest.approx(R_THRESH_REL * 200 * np.sqrt(2), rel=1e-3)
     mi.render(scene, integrator=integ, spp=1)  # no prepass yet above: the scene's bounds
