@@ -11,8 +11,8 @@ import drjit as dr
 import mitsuba as mi
 
 from .. import units
-from ..prepass.rex_textures import (KIND_NONE, MAX_LEVEL, NO_SHAPE, SPLIT_LIMIT, RexSettings,
-                                    photon_budget)
+from ..prepass.rex_textures import (BUCKET_PIXELS, KIND_NONE, MAX_LEVEL, NO_SHAPE, SPLIT_LIMIT,
+                                    RexSettings, photon_budget)
 from ..prepass.rex_textures import build as build_rexes
 from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
@@ -111,18 +111,21 @@ class RexIntegrator(TwoPassIntegrator):
 
     **Photon budget: what the image needs.** Unless ``photons`` (or ``photons_per_pixel``) is
     given, the size pass counts the rex buckets the image needs — for every pixel that sees a
-    rex (through specular and glossy bounces), (pixel side / bucket side at its cap)², about 1–4
-    buckets per visible pixel with ``bucket_pixels`` = 1 — and a probe shoot of 65536 photons
+    rex (through specular and glossy bounces), (pixel side / bucket side at its cap)², ¼–1
+    bucket per visible pixel with ``bucket_pixels`` = 2 — and a probe shoot of 65536 photons
     measures how many deposits a photon leaves on the rexes the eye sees. The budget is
     4 × split_limit × that bucket count / that rate: the photons with which every bucket the eye
     sees splits down to the pixel footprint and fills there to the soft cap's threshold (past
     that, photons refine buckets the screen cannot show). With split_limit photons per bucket
     instead of 4×, the office's ceiling-lit walls were mottled (8×8-block relMSE 6e-3 at 128²),
     and with 4 × 16 they were at the bound (``split_limit``'s default is 32 since session 12).
-    The budget lies within [2^16, 2^24] photons and keeps the records below 8M (memory). So a
-    closed Cornell box (2.4 deposits per photon) shoots 2.4M photons at 128² (1.2M with
-    ``split_limit`` 16) and 3.4M (the record cap) at 256² and 1920×1080, the office 1.5M at 128² (``bench --prepass`` records them), and ``caustic.xml``,
-    whose photons mostly leave the scene (0.14 deposits each), the 2^24 cap at 128² and 256²
+    ``bucket_pixels`` was 1 until session 18: buckets ½–1 pixel wide, 4× the photons, no error
+    the harness or ``check`` could see (:data:`~mi_twopass.prepass.rex_textures.BUCKET_PIXELS`
+    has the figures). The budget lies within [2^16, 2^24] photons and keeps the records below
+    8M (memory). So a closed Cornell box (2.4 deposits per photon) shoots 0.62M photons at 128²
+    and 2.5M at 256², the office 0.40M at 128² and 1.6M at 256² (``bench --prepass`` records
+    them), and ``caustic.xml``, whose photons mostly leave the scene (0.14 deposits each), 9.4M
+    at 128² and the 2^24 cap at 256²
     (``stats["photons"]`` after a render; its prepass 2.3–2.8 s warm at 256²). A scene seen
     mostly through non-Lambertian surfaces needs few.
 
@@ -183,8 +186,9 @@ class RexIntegrator(TwoPassIntegrator):
        - Deepest rex level, whatever the size pass says (default: 14, at most 20).
      * - bucket_pixels
        - |float|
-       - Size-pass cap: the smallest bucket is about this many pixels wide on screen
-         (default: 1; it also sets the automatic photon budget: half of it, 4× the photons).
+       - Size-pass cap: the smallest bucket is at most this many pixels wide on screen, more
+         than half of it (default: 2; it also sets the automatic photon budget: half of it,
+         4× the photons).
      * - direct
        - |string|
        - "shadow" (default): direct light by shadow rays with MIS, rexes hold the rest;
@@ -230,7 +234,8 @@ class RexIntegrator(TwoPassIntegrator):
         self.max_level = read_int(props, "max_level", 14, minimum=0)
         if self.max_level > MAX_LEVEL:
             raise ValueError(f"max_level={self.max_level}: must be <= {MAX_LEVEL}")
-        self.bucket_pixels = read_float(props, "bucket_pixels", 1.0, minimum=0.0, strict=True)
+        self.bucket_pixels = read_float(props, "bucket_pixels", BUCKET_PIXELS, minimum=0.0,
+                                        strict=True)
         self.direct = read_choice(props, "direct", "shadow", DIRECT_MODES)
         self.light_levels = read_int(props, "light_levels", 3, minimum=0)
         self.light_split_dist = read_float(props, "light_split_dist", 0.05, minimum=0.0)

@@ -10,9 +10,9 @@ The build (:func:`build`) runs three steps, each a Dr.Jit wavefront:
 1. **Size pass** (§3.4.1, :func:`size_pass`): rays from the eye, through delta and glossy
    bounces, record at their first diffuse hit the size of a pixel's preimage in that surface's
    parameter space (ray differentials spread over the path length, projected on the tangent plane,
-   divided by the parameterisation's Jacobian |∂p/∂u × ∂p/∂v|). The finest level at which a rex
-   bucket is still ≥ ``bucket_pixels`` pixels becomes the bucket's *cap*, per 8×8 size cell of an
-   analytic shape and per triangle of a mesh. Regions no eye ray saw are capped at level 0. The
+   divided by the parameterisation's Jacobian |∂p/∂u × ∂p/∂v|). The coarsest level at which a
+   rex bucket is at most ``bucket_pixels`` pixels wide (so more than half of that) becomes the
+   bucket's *cap*, per 8×8 size cell of an analytic shape and per triangle of a mesh. Regions no eye ray saw are capped at level 0. The
    cap is soft (step 3): it saves photons where finer buckets would not show, but a surface seen
    only in part (a lamp shade's rim) or missed by the size pass must still converge.
 2. **Light pass** (§3.4.2, §4.1, :func:`light_pass`): per light, an adaptive quadtree over one 2-D
@@ -124,6 +124,14 @@ SPLIT_LIMIT = 32
 #: the automatic budget fills every visible bucket at its cap to this × split_limit photons
 #: (the soft cap's threshold one level past the cap)
 CAP_FILL = 4
+#: the default of rex's ``bucket_pixels``: the size-pass cap stops at buckets at most this many
+#: pixels wide (more than half of it). 2, not 1: at 1 the buckets (½–1 pixel wide, 2.4 per
+#: visible pixel) asked 4× the photons for no error the harness or ``check`` could see, and
+#: the record cap then cut them; at 256² (``bench --res 256``) rex reached relMSE 0.01 on
+#: tut-cbox in 1.58 s, not 3.63 s, on the Cornell box in 1.60 s where 1 did not within 15 s,
+#: and its prepass fell 3.6 → 1.8 s there. At 4 the office and mixed_room failed ``check
+#: --renders 2`` (block bias part 3.4e-3 and 4.7e-3, the bound 3e-3; 2.5e-3 and 1.8e-3 at 2)
+BUCKET_PIXELS = 2.0
 #: photons of the probe shoot that measures the deposits per photon (:func:`photon_need`)
 PROBE_PHOTONS = 1 << 16
 #: bounds of an automatic photon budget
@@ -174,7 +182,7 @@ class RexSettings:
     photons: int = 0  # ≤ 0: what the image needs (photon_need)
     split_limit: int = SPLIT_LIMIT
     max_level: int = 14
-    bucket_pixels: float = 1.0
+    bucket_pixels: float = BUCKET_PIXELS
     direct: str = "rex"  # "rex": rexes hold direct light; "shadow": indirect + caustics only
     max_depth: int = -1
     rr_depth: int = 5

@@ -465,7 +465,9 @@ def test_automatic_photon_budget_follows_the_image():
     # the 2×2 floor seen from 4 above with a 60° field of view fills (1 / (4 tan 30°))² of it
     seen = 32 * 32 / (4 * math.tan(math.radians(30))) ** 2
     assert st["visible_pixels"] == pytest.approx(seen, rel=0.1)
-    assert st["visible_buckets"] >= st["visible_pixels"]  # ≥ 1 bucket per visible pixel
+    # the cap's buckets are bucket_pixels wide or up to half that: 1/bp² to 4/bp² per pixel
+    per_pixel = st["visible_buckets"] / st["visible_pixels"]
+    assert 1.0 / settings.bucket_pixels**2 <= per_pixel <= 4.0 / settings.bucket_pixels**2
     assert st["photon_need"] == pytest.approx(
         4 * settings.split_limit * st["visible_buckets"] / st["visible_deposits_per_photon"])
     assert photon_budget(scene(32, look_at_floor=False), settings) == MIN_PHOTONS
