@@ -8,7 +8,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.sh_cache import ALPHA_REL, BRIGHT_CONTRAST, CacheSettings, cached_surface
+from ..prepass.sh_cache import ALPHA_REL, BRIGHT_CONTRAST, CacheSettings
 from ..prepass.sh_cache import build as build_cache
 from ..prepass.spike_grid import SpikeSettings
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
@@ -56,8 +56,10 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     reflector only, and a radiosity B_r/π the light leaving one only. So a surface is *cached*
     where its BSDF has a diffuse-reflection lobe and nothing else (no glossy, delta,
     transmission or null lobe: not ``plastic``, ``blendbsdf``, ``roughconductor``,
-    ``thindielectric``, ``mask``) and its radiosity patch on the side hit is diffuse and not cut
-    by geometry (:func:`~mi_twopass.prepass.sh_cache.cached_surface`). The SH gather rays
+    ``thindielectric``, ``mask``) and its receiver of the radiosity solution (the receiving
+    element, with elements) on the side hit is diffuse, not cut by geometry, not unevenly lit
+    and not a bright reflector (:class:`~mi_twopass.prepass.sh_cache.CachedReceivers`). The
+    SH gather rays
     read B_r/π only on cached surfaces (0 elsewhere), the near-field triangles of other
     surfaces have R_t = 0, so ρ/π (B_D + λ B_C) estimates the light that reaches x *from cached
     surfaces* and nothing else. The rest is path traced, never read from the cache: a vertex
@@ -100,14 +102,15 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     participating medium fails at the prepass with a ValueError that names it (render it with
     ``volpath``), unless ``ignore_media`` is set (then media are ignored, as ``path`` does).
 
-    R_t is the *reflected* radiosity of the triangle's patch and F the point-to-triangle form
+    R_t is the *reflected* radiosity of the triangle's receiver and F the point-to-triangle form
     factor: exact (Lambert's formula, finite at corners) for BVH leaves, one disk per BVH node
     farther than 4 × its bounding radius (§7). The far field holds indirect light only (gather
     rays read B_r/π; rays that hit within α are left out of the fit), so direct light is counted
     once, by emitter sampling. ``alpha → 0`` removes B_C; ``alpha`` larger than the scene gives
     B_D ≈ 0 and a visibility-free one-bounce gather from the radiosity solution.
 
-    The near-field triangles are the radiosity patches' triangles, split lazily (§5) by
+    The near-field triangles are the receivers' triangles (the elements', with elements; the
+    patches' until session 18), split lazily (§5) by
     longest-edge bisection until smaller than α wherever a camera shading point may lie within α
     of them (:func:`~mi_twopass.prepass.near_field.split_near_triangles`); triangles inside a
     closed solid (faces of overlapping boxes) are left out, since no point sees them
@@ -197,13 +200,13 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - Gather rays per SH sample (default: 128).
      * - bright_contrast
        - |float|
-       - Radiosity patches whose reflected radiosity is at least this many times the cached
-         patches' area-weighted mean (and together carry ≥ 2 % of the reflected power) are
-         not cached: the far and near fields read nothing there and the cache vertex's BSDF
+       - Receivers (elements, else patches) whose reflected radiosity is at least this many
+         times the cached ones' area-weighted mean (and together carry ≥ 2 % of the reflected
+         power) are not cached: the far and near fields read nothing there and the cache vertex's BSDF
          ray that meets them traces on (default: 4, the contrast of GSII's virtual
          luminaires; ≥ 1). An order-2 SH field cannot hold a reflector that much brighter
          than the rest (a lamp shade's inside): cached, it made ±20–50 % blotches that moved
-         with the prepass seed (:func:`~mi_twopass.prepass.sh_cache.uncache_bright`).
+         with the prepass seed (:func:`~mi_twopass.prepass.sh_cache.bright_receivers`).
      * - max_near_triangles
        - |int|
        - Budget of the lazy split (§5): splitting stops (longest edges first) when the near
@@ -389,7 +392,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
             # just counted). Elsewhere (glossy, glass, a shape without patches) it goes on.
             in_cache = mi.Bool(False)
             if reads_cache:
-                in_cache = cached_surface(s.patches, s.elements, si, after_cache & diffuse)
+                in_cache = s.cached.at(si, after_cache & diffuse)
             active_next = active & si.is_valid() & ~in_cache & (depth + 1 < max_depth)
             smooth = mi.has_flag(flags, mi.BSDFFlags.Smooth)
             first_vertex = n_nondelta == 0

@@ -337,8 +337,7 @@ class TwoPassChooser(TwoPassIntegrator):
         if c.indirect == "radiosity":
             parts["radiosity"] = active & s.solution.cached_at(si, active)
         if c.indirect == "cache":
-            from ..prepass.sh_cache import cached_surface
-            parts["cache"] = active & cached_surface(s.patches, s.elements, si, active)
+            parts["cache"] = active & s.cached.at(si, active)
         if c.caustics == "rex":
             from ..prepass.rex_textures import KIND_NONE, NO_SHAPE
             shape = s.tables.shape_index(si, active)

@@ -18,7 +18,7 @@ Steps (:func:`build_radiance_cache`):
    cluster drawn at random, uniform over each point's hemisphere, read the coarse solution at the
    hit: the *reflected* radiance B_r/π of the radiosity patch (indirect light only; direct light is
    Mitsuba's emitter sampling at render time), and only where the surface hit is *cached*
-   (:func:`cached_surface`: purely diffuse, its patch not cut by geometry). A ray that meets
+   (:class:`CachedReceivers`: purely diffuse, its element not cut by geometry). A ray that meets
    glass, metal, a glossy or mixed surface reads 0: the render traces that light (L S+ D
    included) and must not find it in the fit as well. Rays that hit geometry closer than
    ``alpha`` are dropped from the fit: that light is the near field, counted by B_C. A miss
@@ -72,19 +72,139 @@ GRID_MAX_RES = 64
 GRID_CELL_REL = 0.5
 
 
-def cached_surface(patches, elements, si, active=True):
-    """``mi.Bool``: the cache holds the light reflected at ``si`` toward its ray — a Lambertian
-    surface (:mod:`mi_twopass.scene.lambertian`; patches are diffuse only there) whose patch (and element, with ``elements``) on the
-    side hit is diffuse and not cut by geometry (``is_diffuse``, see
-    :mod:`mi_twopass.scene.patches`). The SH gather reads the radiosity only there, and the
-    render's path ends only there; everywhere else (glossy, glass, a split patch, a shape
-    without patches, the black back of a one-sided surface) the path is traced on."""
-    ok = mi.Bool(active) & si.is_valid()
-    ok &= lambertian_flags(si.bsdf().flags())
-    ok &= patches.is_diffuse_at(si, ok)
-    if elements is not None:
-        ok &= elements.is_diffuse_at(si, ok)
-    return ok
+class CachedReceivers:
+    """The surfaces the cache holds: one flag per *receiver* of the coarse solution (its
+    receiving elements, else its patches: the mesh whose radiosity a gather ray reads), and
+    the near field's triangles with their R_t. A receiver is cached where its shape is
+    Lambertian (:mod:`mi_twopass.scene.lambertian`), it is diffuse on the side hit, not cut by
+    geometry and not unevenly lit (``is_diffuse``: :mod:`mi_twopass.scene.patches`,
+    :func:`~mi_twopass.prepass.radiosity.receiver_spread`) and not a bright reflector
+    (:func:`bright_receivers`). The SH gather reads B_r/π only there (:func:`gather_far_field`),
+    only cached surfaces send R_t into the near field, and the render's path ends only there;
+    everywhere else (glossy, glass, a cut or bright receiver, a shape without patches, the
+    black back of a one-sided surface) the path is traced on.
+
+    With elements the element decides, as for radiosity_gather's far gather
+    (:meth:`~mi_twopass.prepass.radiosity.RadiositySolution.cached_at`), unless its patch is a
+    bright reflector. Until session 18 its patch had to be uncut too: on window_interior
+    37–41 % of the camera's Lambertian hits and 36 % of the cache vertices' BSDF rays then
+    met an uncached surface and were path traced (28 % of the hits lay on the 499 of 2028
+    patches cut by geometry); with the element's rule 20 % and 16 %.
+
+    ``near`` is ``(vertices (T, 3, 3), normals (T, 3), R_t (T, 3))``: the triangles of the
+    cached patches with the patch's reflected radiosity (as before session 18: a patch's mean
+    holds four elements' particles, and its larger triangles are the near field the corner
+    tests were measured with), and those of the cached elements that lie on a cut or unevenly
+    lit patch, with the element's own (a cut patch's mean mixes its lit and shadowed parts)."""
+
+    def __init__(self, receivers, cached, near, bright=None):
+        #: the receiving mesh (:class:`~mi_twopass.scene.patches.Patches`)
+        self.receivers = receivers
+        #: (M,) bool: cached
+        self.cached = np.asarray(cached, dtype=bool)
+        self.near = near
+        #: ids of the receivers left out as bright reflectors (or lying on one)
+        self.bright = np.zeros(0, np.uint32) if bright is None else np.asarray(bright, np.uint32)
+        # a Dr.Jit copy now, never first inside a symbolic loop; the invalid id reads False
+        self._table = jit(mi.Bool, np.append(self.cached, False))
+
+    @property
+    def nbytes(self) -> int:
+        return int(2 * self.cached.nbytes + sum(a.nbytes for a in self.near))
+
+    def at(self, si, active=True):
+        """``mi.Bool``: the cache holds the light reflected at ``si`` toward its ray."""
+        ok = mi.Bool(active) & si.is_valid()
+        ok &= lambertian_flags(si.bsdf().flags())
+        return ok & dr.gather(mi.Bool, self._table, self.receivers.lookup(si, ok), ok)
+
+
+def bright_receivers(B_reflected, area, is_diffuse, contrast: float) -> np.ndarray:
+    """Ids of the bright reflectors the cache leaves out: receivers whose reflected radiosity
+    is at least ``contrast`` × the area-weighted mean of the cached ones, where together they
+    carry at least 2 % of the reflected power
+    (:func:`~mi_twopass.prepass.radiosity.reclassified_patches` with GSII's fraction of the
+    maximum at 0: the contrast alone decides).
+
+    An order-2 SH field cannot hold light from a reflector that much brighter than the rest:
+    fitted from the few gather rays of a cluster that hit it and spread by the RBF
+    interpolation to points that do not see it, it left blotches of ±20–50 % in 8×8-pixel
+    blocks around veach-bidir's lamps, in another place for each prepass seed (``check
+    --renders 2`` at 128 px, 64 spp: bias part 9.4e-3, 3.4e-2, 1.1e-2, 1.9e-2 over four
+    seeds, the bound 3e-3; neither 8192 gather rays per cluster nor 8× the particles brought
+    seed 1 under 1.1e-2). Left out, they send no B_r into the far field or the near field, and
+    the cache vertex's BSDF ray that meets them traces on, as for every surface the cache does
+    not hold: seeds 0 and 1 read −4.2e-4 and −2.5e-4 (± 2.2e-3), measured on patches (session
+    11). Leaving out only those also above half the brightest (GSII's rule, the virtual
+    luminaires') left 4.4–7.2e-3. A mask of the cache's own: the solution, which other
+    prepasses may share through a memo, is not changed (until session 18 it was)."""
+    Br = np.asarray(B_reflected, dtype=np.float64).mean(axis=1)
+    return reclassified_patches(Br, area, is_diffuse, 0.0, contrast)
+
+
+def patch_of_triangles(scene, patches, vertices, normals) -> np.ndarray:
+    """The patch of ``patches`` each triangle (``vertices`` (T, 3, 3), side ``normals``) lies
+    on: a short ray cast at its centroid against its normal; ``patches.count`` where none."""
+    if not len(vertices):
+        return np.zeros(0, np.int64)
+    c = np.asarray(vertices, dtype=np.float64).mean(axis=1)
+    n = np.asarray(normals, dtype=np.float64)
+    eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(c).max()
+    f = lambda a: mi.Vector3f(*(jit(mi.Float, a[:, k].astype(np.float32))  # noqa: E731
+                                for k in range(3)))
+    ray = mi.Ray3f(mi.Point3f(f(c + eps * n)), f(-n))
+    ray.maxt = mi.Float(2.0 * eps)
+    si = scene.ray_intersect(ray)
+    return np.asarray(patches.lookup(si, si.is_valid()), dtype=np.int64)
+
+
+def _triangles(mesh, ids, R):
+    """(vertices, normals, R_t) of the triangles of ``mesh`` whose receiver is in ``ids``
+    (a bool mask over the receivers), R_t from the per-receiver ``R``."""
+    tri = np.asarray(mesh.tri_patch, dtype=np.int64)
+    keep = ids[tri]
+    return (np.asarray(mesh.tri_vertices)[keep], np.asarray(mesh.tri_normal)[keep],
+            np.asarray(R, dtype=np.float64)[tri[keep]])
+
+
+def cached_receivers(scene, solution, lambertian, contrast: float = 0.0) -> CachedReceivers:
+    """:class:`CachedReceivers` of ``solution`` (a
+    :class:`~mi_twopass.prepass.radiosity.RadiositySolution`): its elements where it has
+    them, else its patches; bright reflectors (:func:`bright_receivers`, among the patches
+    and among the elements) left out where ``contrast`` > 0."""
+    P = solution.patches
+    lam = lambda mesh: lambertian.per_shape[np.asarray(mesh.shape_index, dtype=np.int64)]  # noqa
+    p_ok = np.asarray(P.is_diffuse, dtype=bool) & lam(P)
+    p_bright = bright_receivers(solution.B_reflected, P.area, p_ok, contrast) \
+        if contrast > 0 else np.zeros(0, np.uint32)
+    p_cached = p_ok.copy()
+    p_cached[p_bright] = False
+    near_p = _triangles(P, p_cached, solution.B_reflected)
+    if solution.elements is None:
+        return CachedReceivers(P, p_cached, near_p, p_bright)
+    E = solution.elements
+    e_ok = np.asarray(E.is_diffuse, dtype=bool) & lam(E)
+    e_bright = bright_receivers(solution.B_reflected_elements, E.area, e_ok, contrast) \
+        if contrast > 0 else np.zeros(0, np.uint32)
+    # each element's patch, from its first triangle
+    tri = np.asarray(E.tri_patch, dtype=np.int64)
+    first = np.full(E.count, -1, np.int64)
+    first[tri[::-1]] = np.arange(len(tri))[::-1]
+    has = first >= 0
+    on = np.full(E.count, P.count, np.int64)
+    on[has] = patch_of_triangles(scene, P, np.asarray(E.tri_vertices)[first[has]],
+                                 np.asarray(E.tri_normal)[first[has]])
+    inside = on < P.count
+    on_bright = np.zeros(E.count, dtype=bool)
+    on_bright[inside] = np.isin(on[inside], p_bright)
+    on_whole = np.zeros(E.count, dtype=bool)  # on a patch the near field holds whole
+    on_whole[inside] = p_ok[on[inside]]
+    e_cached = e_ok & ~on_bright
+    e_cached[e_bright] = False
+    bright = np.nonzero(e_ok & ~e_cached)[0]
+    near_e = _triangles(E, e_cached & ~on_whole, solution.B_reflected_elements)
+    near = tuple(np.concatenate([a, b]) for a, b in zip(near_p, near_e))
+    return CachedReceivers(E, e_cached, near, bright)
 
 
 def default_alpha(points, alpha_rel: float, fallback_diagonal: float) -> float:
@@ -473,9 +593,11 @@ class RadianceCache:
 
 
 def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=128, seed=0,
-                     reg=sh.DEFAULT_REG):
-    """Eq. 4: per cluster of ``clusters`` (:class:`Clusters`), ``rays_per_cluster`` gather rays from random shading points of the
-    cluster (uniform hemisphere) read B_r/π of the patch hit where it is cached (0 elsewhere);
+                     reg=sh.DEFAULT_REG, cached=None):
+    """Eq. 4: per cluster of ``clusters`` (:class:`Clusters`), ``rays_per_cluster`` gather
+    rays from random shading points of the cluster (uniform hemisphere) read B_r/π of the
+    receiver hit where it is cached (``cached``, a :class:`CachedReceivers`; default: the
+    solution's receivers, no bright reflector left out), 0 elsewhere;
     hits closer than ``alpha`` are left out (near field). Ray origins are offset relative to
     the scene's size. → ``(coeffs (K, 9, 3), rays traced)``."""
     K = len(clusters)
@@ -507,7 +629,9 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     ray = mi.Ray3f(mi.Point3f(f(o + eps * nn)), f(d))
     si = scene.ray_intersect(ray)
     # only a cached surface sends B_r/π: on any other the render traces the path on
-    valid = cached_surface(solution.patches, solution.elements, si, si.is_valid())
+    if cached is None:
+        cached = cached_receivers(scene, solution, LambertianShapes(scene))
+    valid = cached.at(si, si.is_valid())
     L = solution.reflected_radiance(si, valid)
     L = dr.select(valid, L, 0.0)
     dist = dr.select(si.is_valid(), si.t, np.inf)
@@ -525,11 +649,12 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
 
 def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
                          max_clusters=256, rays_per_cluster=128, seed=0, ambient=0.0,
-                         fake_gi=False, shading_points=None):
+                         fake_gi=False, shading_points=None, cached=None):
     """Steps 1–4 of the module docstring → :class:`RadianceCache`. ``fake_gi``: no shading
     points and no gather, only the constant ``ambient`` radiance (§8.1). ``shading_points``:
     the ``(p, n, rays)`` of :func:`collect_shading_points` when the caller already has them
-    (the integrator does: its default alpha depends on them)."""
+    (the integrator does: its default alpha depends on them). ``cached``: the receivers the
+    gather reads (:class:`CachedReceivers`; default :func:`cached_receivers`)."""
     amb = np.broadcast_to(np.asarray(ambient, dtype=np.float64), (3,)).copy()
     if fake_gi or solution is None:
         return RadianceCache(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 9, 3)), float(alpha),
@@ -541,7 +666,7 @@ def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
     alpha, clusters = fit_clusters(p, alpha, max_clusters, seed)
     center, radius = clusters.center.reshape(-1, 3), clusters.radius.reshape(-1)
     coeffs, rays = gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster,
-                                    seed)
+                                    seed, cached=cached)
     cache = RadianceCache(center, radius, coeffs, float(alpha), amb, p, rays, shading_rays)
     cache._tables  # Dr.Jit copies now, never first inside a symbolic loop
     return cache
@@ -573,7 +698,7 @@ def check_no_media(scene):
 #: B_C, §6); 0.03 needs about half the SH samples of 0.02.
 ALPHA_REL = 0.03
 #: a patch whose reflected radiosity is this many times the cached patches' area-weighted mean
-#: is not cached (:func:`uncache_bright`): the contrast of GSII's virtual luminaires
+#: is not cached (:func:`bright_receivers`): the contrast of GSII's virtual luminaires
 BRIGHT_CONTRAST = VL_CONTRAST
 
 
@@ -592,7 +717,7 @@ class CacheSettings:
     max_clusters: int = 1024
     rays_per_cluster: int = 128
     #: patches whose reflected radiosity is this many times the cached patches' mean are not
-    #: cached (:func:`uncache_bright`)
+    #: cached (:func:`bright_receivers`)
     bright_contrast: float = BRIGHT_CONTRAST
     max_near_triangles: int = 1 << 17
     near_cell_rel: float = 0.5
@@ -619,11 +744,13 @@ class CachePrepass:
     that reads it would take its arrays for loop state."""
 
     def __init__(self, scale, lambertian, alpha=0.0, patches=None, elements=None, solution=None,
-                 cache=None, near=None, split_complete=True, spike=None):
+                 cache=None, near=None, split_complete=True, spike=None, cached=None):
         self.scale, self.lambertian, self.alpha = scale, lambertian, alpha
         self.patches, self.elements, self.solution = patches, elements, solution
         self.cache, self.near, self.split_complete = cache, near, split_complete
         self.spike = spike
+        #: the surfaces the cache holds (:class:`CachedReceivers`), None where nothing is built
+        self.cached = cached
 
     @property
     def grid(self):
@@ -672,40 +799,6 @@ def build(scene, settings: CacheSettings, seed: int, progress: bool = True,
     return pre
 
 
-def uncache_bright(solution, contrast: float = BRIGHT_CONTRAST) -> np.ndarray:
-    """Stop caching the bright reflectors of the coarse ``solution``: the patches whose
-    reflected radiosity is at least ``contrast`` × the area-weighted mean of the cached ones,
-    where together they carry at least 2 % of the reflected power
-    (:func:`~mi_twopass.prepass.radiosity.reclassified_patches` with GSII's fraction of the
-    maximum at 0: the contrast alone decides).
-
-    An order-2 SH field cannot hold light from a reflector that much brighter than the rest:
-    fitted from the few gather rays of a cluster that hit it and spread by the RBF
-    interpolation to points that do not see it, it left blotches of ±20–50 % in 8×8-pixel
-    blocks around veach-bidir's lamps, in another place for each prepass seed (``check
-    --renders 2`` at 128 px, 64 spp: bias part 9.4e-3, 3.4e-2, 1.1e-2, 1.9e-2 over four
-    seeds, the bound 3e-3; neither 8192 gather rays per cluster nor 8× the particles brought
-    seed 1 under 1.1e-2). Uncached, they send no B_r into the far field or the near field, and
-    the cache vertex's BSDF ray that meets them traces on, as for every surface the cache does
-    not hold: seeds 0 and 1 read −4.2e-4 and −2.5e-4 (± 2.2e-3). Uncaching only those also
-    above half the brightest (GSII's rule, the virtual luminaires') left 4.4–7.2e-3.
-
-    Done once per solution (a solve shared through a memo is not uncached twice: the next
-    brightest would follow). Returns the patch ids."""
-    patches = solution.patches
-    done = getattr(patches, "bright_uncached", None)
-    if done is not None:
-        return done
-    Br = np.asarray(solution.B_reflected).mean(axis=1)
-    ids = reclassified_patches(Br, patches.area, patches.is_diffuse, 0.0, contrast)
-    if ids.size:
-        mask = np.zeros(patches.count, dtype=bool)
-        mask[ids] = True
-        patches.uncache(mask)
-    patches.bright_uncached = ids
-    return ids
-
-
 def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
                  progress: bool = True, memo=None) -> CachePrepass:
     """:func:`build` without the spike lists."""
@@ -722,33 +815,31 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
     alpha = cache_alpha(scene, settings, None if points is None else points[0])
     rad = None if settings.fake_gi else build_radiosity(scene, settings.radiosity, seed, progress,
                                                         sensor=sensor, memo=memo)
-    if rad is not None:
-        uncache_bright(rad.solution, settings.bright_contrast)
-    patches = rad.patches if rad is not None else \
-        build_patches(scene, max_patches=settings.radiosity.max_patches, seed=seed)
-    # a near triangle sends R_t only from a cached patch (as cached_surface at render time)
-    patch_diffuse = lambertian.per_shape[np.asarray(patches.shape_index, dtype=np.int64)] \
-        & np.asarray(patches.is_diffuse, dtype=bool)
     solution = rad.solution if rad is not None else None
     elements = rad.elements if rad is not None else None
-    tri_B = np.asarray(solution.B_reflected)[np.asarray(patches.tri_patch)] \
-        if solution is not None else np.zeros((len(patches.tri_patch), 3))
-    diffuse = patch_diffuse[np.asarray(patches.tri_patch)] if len(patch_diffuse) else \
-        np.zeros(0, dtype=bool)
-    tri_B = np.where(diffuse[:, None], tri_B, 0.0)
+    if solution is not None:
+        cached = cached_receivers(scene, solution, lambertian, settings.bright_contrast)
+    else:  # fake GI (§8.1): no radiosity, every triangle's R_t is 0; paths end as they would
+        patches = build_patches(scene, max_patches=settings.radiosity.max_patches, seed=seed)
+        ok = np.asarray(patches.is_diffuse, dtype=bool) & \
+            lambertian.per_shape[np.asarray(patches.shape_index, dtype=np.int64)]
+        cached = CachedReceivers(patches, ok, _triangles(patches, ok,
+                                                         np.zeros((patches.count, 3))))
+    patches = rad.patches if rad is not None else cached.receivers
+    tri_vertices, tri_normal, tri_B = cached.near
     cache = build_radiance_cache(scene, solution, alpha, sensor=sensor, shading_points=points,
                                  max_points=settings.max_points,
                                  max_clusters=settings.max_clusters,
                                  rays_per_cluster=settings.rays_per_cluster, seed=seed,
                                  ambient=settings.ambient if settings.fake_gi else 0.0,
-                                 fake_gi=settings.fake_gi or sensor is None)
+                                 fake_gi=settings.fake_gi or sensor is None, cached=cached)
     # alpha grows where max_clusters cannot cover the points with clusters that small
     # (fit_clusters): the near field must reach as far as the far field leaves out
     alpha = cache.alpha
     # §5: triangles near the camera's shading points split lazily until smaller than alpha
     shading = np.zeros((0, 3)) if points is None else points[0]
     verts, tri_n, tri_B, split_complete = split_near_triangles(
-        patches.tri_vertices, patches.tri_normal, tri_B, shading, alpha,
+        tri_vertices, tri_normal, tri_B, shading, alpha,
         max_triangles=settings.max_near_triangles)
     seen = ~buried_triangles(scene, verts, tri_n)  # inside a solid: never visible (§5)
     near = build_near_field(verts[seen], tri_n[seen], tri_B[seen],
@@ -756,4 +847,4 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
                             cell_size=settings.near_cell_rel * alpha)
     return CachePrepass(scale=scale, lambertian=lambertian, alpha=alpha, patches=patches,
                         elements=elements, solution=solution, cache=cache, near=near,
-                        split_complete=split_complete)
+                        split_complete=split_complete, cached=cached)

@@ -374,7 +374,8 @@ def test_bright_reflectors_are_traced_not_cached_so_no_prepass_seed_swings_the_i
     that hit it, and the RBF interpolation spread it to points that do not see it: the image
     mean swung with the prepass seed (0.960 … 1.055 of path's over three seeds in session 11;
     veach-bidir's lamps: 8×8-block blotches of ±20–50 %). Patches brighter than
-    BRIGHT_CONTRAST × the mean are now uncached (traced on from the cache vertex).
+    BRIGHT_CONTRAST × the mean are now uncached (traced on from the cache vertex); since
+    session 18 receiving elements, not patches.
 
     Checked here: the shade's bright patches are the ones uncached, and the image mean's
     spread over prepass seeds stays small. What is left of it is the far field's own noise:
@@ -384,14 +385,18 @@ def test_bright_reflectors_are_traced_not_cached_so_no_prepass_seed_swings_the_i
     scene = mi.load_dict(hs.lampshade())
     integ = mi.load_dict({"type": "radiance_cache"})
     pre, _ = integ.ensure_prepass(scene, 0)
-    ids = np.asarray(pre.patches.bright_uncached)
+    cached = pre.cached
+    ids = cached.bright
     assert ids.size > 0
-    assert not np.asarray(pre.patches.is_diffuse)[ids].any()
-    Br = np.asarray(pre.solution.B_reflected).mean(axis=1)
-    area = np.asarray(pre.patches.area)
-    kept = np.asarray(pre.patches.is_diffuse) & (Br > 0)
+    assert not cached.cached[ids].any()
+    assert np.asarray(cached.receivers.is_diffuse)[ids].all()  # left out for their brightness
+    # the elements left out (bright themselves or on a bright patch) are the shade's inside:
+    # together far brighter than the cached elements
+    Br = np.asarray(pre.solution.B_reflected_elements).mean(axis=1)
+    area = np.asarray(cached.receivers.area)
+    kept = cached.cached & (Br > 0)
     mean_kept = (Br[kept] * area[kept]).sum() / area[kept].sum()
-    assert Br[ids].min() >= BRIGHT_CONTRAST * mean_kept
+    assert (Br[ids] * area[ids]).sum() / area[ids].sum() >= BRIGHT_CONTRAST * mean_kept
 
     def means(**props):
         return np.array([np.asarray(mi.render(scene, integrator=mi.load_dict(
