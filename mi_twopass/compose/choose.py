@@ -166,11 +166,11 @@ def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: fl
     return integ, predicted, time.perf_counter() - t0
 
 
-def _over_budget(spent: float, floor: float, budget: float, share: float,
-                 path_seconds: float) -> str:
-    """Why a candidate's prepass is not started: what was spent and its floor pass its budget."""
+def _over_budget(spent: float, floor: float, budget: float, basis: str) -> str:
+    """Why a candidate's prepass is not started: what was spent and its floor pass its budget
+    (``basis``: what the budget is)."""
     return (f"budget: {spent:.3g} s spent + a prepass of at least {floor:.3g} s > {budget:.3g} s "
-            f"({share:.3g} x path's predicted {path_seconds:.3g} s)")
+            f"({basis})")
 
 
 def path_sum_estimator(path_integ, parts_out=None):
@@ -350,15 +350,27 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     best = min((m.score(spp) for m in measured.values()), default=float("inf"))
     # the render as probed where it was (fixed part included), else as the pilot predicts it
     path_seconds = probed.seconds(spp) if probed is not None else spp * path_m.seconds_per_spp
+    first_done = None  # seconds spent when the first structure was measured
     for c in sorted(others, key=lambda c: decision.best_case[c.name]):
         # the break-even budget for the first structure only: once one is measured, the
         # others' best cases (near 0 for a composition that serves every part) promise
         # nothing the measured one has not (with it for every candidate, many_lights at
         # 256², 64 spp, built the radiance cache beside the spike lists it then rendered)
-        first = not any(n != path_row.name for n in measured)
+        first = first_done is None
         share = (cost.prepass_budget(decision.best_case[c.name], path_m.score(spp),
                                      budget_factor) if first else budget_factor)
         budget = share * path_seconds
+        basis = f"{share:.3g} x path's predicted {path_seconds:.3g} s"
+        if not first:
+            leader = min(measured.values(), key=lambda m: m.score(spp))
+            leader_seconds = path_seconds if leader is path_m else \
+                spp * leader.seconds_per_spp
+            later = cost.later_budget(path_seconds, first_done, leader_seconds, budget_factor)
+            if later < budget:
+                budget = later
+                basis = (f"{first_done:.3g} s when the first structure was measured + "
+                         f"{budget_factor:.3g} x the best one's predicted render "
+                         f"{leader_seconds:.3g} s")
         why = cost.structural_reason(c, scene_traits)
         if why is None and c.caustics == "rex" and \
                 variance.caustic < cost.CAUSTIC_SHARE * variance.total:
@@ -375,7 +387,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             # no prepass fits: said before rex's photon need is measured (a size pass and a
             # probe shoot), as the floor below would say after it
             decision.skipped[c.name] = _over_budget(spent, cost.PREPASS_LEAST_SECONDS, budget,
-                                                    share, path_seconds)
+                                                    basis)
             continue
         integ = candidate(c)
         least, need = cost.light_paths(integ, scene, sensor)
@@ -397,7 +409,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
                 decision.fitted[c.name] = (fits, need)
                 floor = cost.prepass_floor(fits, path_m, film_pixels)
         if spent + floor > budget and measured:
-            decision.skipped[c.name] = _over_budget(spent, floor, budget, share, path_seconds)
+            decision.skipped[c.name] = _over_budget(spent, floor, budget, basis)
             if least < need and c.name not in decision.fitted:
                 decision.skipped[c.name] += (
                     f"; cut to the fewest photons allowed, {least} (1/{cost.CUT_MAX} of the "
@@ -431,6 +443,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             frozen=0.0 if frozen is None else max(frozen.pixel, 0.0))
         runs[c.name] = (c, integ, run)
         best = min(best, measured[c.name].score(spp))
+        if first_done is None:
+            first_done = time.perf_counter() - t_start
 
     if not measured:  # nothing allowed could be built: say why
         raise ValueError("twopass: no composition allowed by the forced choices can be "

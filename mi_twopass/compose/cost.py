@@ -435,6 +435,23 @@ def prepass_budget(best_case: float, path_score: float, pilot_share: float) -> f
     return max(share, pilot_share)
 
 
+def later_budget(path_seconds: float, first_done: float, leader_seconds: float,
+                 pilot_share: float) -> float:
+    """The seconds the pilot and the prepasses may have spent when a candidate after the first
+    structure measured is started: what had been spent when that one was measured, plus
+    ``pilot_share`` of the predicted render time of the best-scoring candidate so far
+    (``leader_seconds``), never more than ``pilot_share`` of path's (``path_seconds``, the
+    budget every candidate had before session 18).
+
+    Once a structure is measured, the render the user is waiting for is the leader's, not
+    path's: a further prepass is an overhead on that. With path's budget, on window_interior
+    at 256² and 256 spp twopass built spike lists with radiosity (0.87 s), then the radiance
+    cache with spike lists (1.22 s) and radiosity_gather's solve (0.84 s), with a pilot each:
+    3.6 s of a 8.2 s run (ad hoc, beside another job), to choose radiosity_gather's composition
+    at a score 16 % below the first one's."""
+    return min(pilot_share * path_seconds, first_done + pilot_share * leader_seconds)
+
+
 def best_case_score(parts: VarianceParts, path: Measured, c: Composition, spp: int) -> float:
     """The score ``c`` could at best reach: no prepass, path's cost per sample, no bias, the
     variance of :meth:`VarianceParts.best_case`."""

@@ -135,6 +135,15 @@ def test_prepass_budget_follows_the_best_case_break_even_within_its_bounds():
     assert tie.score(spp) == pytest.approx(path.score(spp))
 
 
+def test_later_candidates_are_budgeted_on_the_leaders_render_not_paths():
+    # path would render in 10 s; the first structure was measured after 1.5 s and renders in 2 s
+    assert cost.later_budget(10.0, 1.5, 2.0, 0.25) == pytest.approx(1.5 + 0.25 * 2.0)
+    # a leader no faster than path (or path itself) leaves path's budget
+    assert cost.later_budget(10.0, 1.5, 10.0, 0.25) == pytest.approx(2.5)
+    assert cost.later_budget(10.0, 2.4, 10.0, 0.25) == pytest.approx(2.5)
+    assert cost.later_budget(10.0, 1.5, 2.0, 0.0) == 0.0  # pilot_budget = 0: path only
+
+
 def test_none_fit_decides_without_a_pilot_only_when_every_floor_is_too_big():
     counts = {"a": 262144, "b": 4 * 10**6}
     # 16384 pixels x 16 spp: half of it over the factor 2 is 65536 light paths
