@@ -132,10 +132,10 @@ class RexIntegrator(TwoPassIntegrator):
     **Cost.** Photons cost about one ray per bounce. The emission samples are made in Dr.Jit
     (no per-photon numpy), the light quadtree has at most 2^18 leaves, and the rex build sorts
     the records once by a Morton key so that each level costs its nodes, not its photons.
-    Measured on two CPU cores with ``python -m mi_twopass bench --prepass --quick`` (the
-    prepass alone, warm kernel cache): 1.6 s on the Cornell box at 128² (9.7 s with 256 photons
-    per pixel), 5.0 s at 256² (12.7 s), 7.1 s at 1920×1080 (14.7 s; peak memory 1.3 GB, was
-    3.8 GB). The records (26 bytes per deposit)
+    Measured on two CPU cores with ``python -m mi_twopass bench --prepass --quick
+    --integrators rex`` (the prepass alone, warm kernel cache; session 18): 0.71 s on the
+    Cornell box at 128² (9.7 s with 256 photons per pixel), 3.1 s at 256² (12.7 s), 5.4 s at
+    1920×1080 (14.7 s; peak memory 1.4 GB, was 3.8 GB). The records (26 bytes per deposit)
     are freed after the build; the rexes take 8 + 24 bytes per node and depth class
     (``cache_bytes``).
 
