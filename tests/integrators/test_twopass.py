@@ -284,6 +284,14 @@ def test_debug_view_colours_the_technique():
                            "debug": "indirect_technique"}, [0.0, 0.35, 0.9])
 
 
+def test_debug_view_shows_what_the_radiance_cache_holds():
+    """Forced to the radiance cache on the box: green where the cache holds the surface (its
+    receiving element, since session 18, not its patch too), grey elsewhere."""
+    assert_technique_view(mi.load_dict(hs.box()),
+                          {"direct": "emitter", "indirect": "cache",
+                           "debug": "indirect_technique"}, [0.0, 0.75, 0.2])
+
+
 def test_direct_debug_view_shows_spike_lists_on_a_scene_with_many_lights():
     """Forced to spike lists on the mixed room (26 lamps, a sun and a sky): orange where a cell
     has a list, grey elsewhere, black where the camera sees no surface (the window)."""
