@@ -109,8 +109,9 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     once, by emitter sampling. ``alpha → 0`` removes B_C; ``alpha`` larger than the scene gives
     B_D ≈ 0 and a visibility-free one-bounce gather from the radiosity solution.
 
-    The near-field triangles are the receivers' triangles (the elements', with elements; the
-    patches' until session 18), split lazily (§5) by
+    The near-field triangles are the cached patches' triangles, with the cached elements' of cut
+    or unevenly lit patches (:class:`~mi_twopass.prepass.sh_cache.CachedReceivers`), split
+    lazily (§5) by
     longest-edge bisection until smaller than α wherever a camera shading point may lie within α
     of them (:func:`~mi_twopass.prepass.near_field.split_near_triangles`); triangles inside a
     closed solid (faces of overlapping boxes) are left out, since no point sees them
@@ -200,12 +201,12 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - Gather rays per SH sample (default: 128).
      * - bright_contrast
        - |float|
-       - Receivers (elements, else patches) whose reflected radiosity is at least this many
-         times the cached ones' area-weighted mean (and together carry ≥ 2 % of the reflected
-         power) are not cached: the far and near fields read nothing there and the cache vertex's BSDF
-         ray that meets them traces on (default: 4, the contrast of GSII's virtual
-         luminaires; ≥ 1). An order-2 SH field cannot hold a reflector that much brighter
-         than the rest (a lamp shade's inside): cached, it made ±20–50 % blotches that moved
+       - Receivers (patches, and elements on their own) whose reflected radiosity is at least
+         this many times the cached ones' area-weighted mean (and together carry ≥ 2 % of the
+         reflected power) are not cached: the far and near fields read nothing there and the
+         cache vertex's BSDF ray that meets them traces on (default: 4, the contrast of
+         GSII's virtual luminaires; ≥ 1). An order-2 SH field cannot hold a reflector that
+         much brighter than the rest (a lamp shade's inside): cached, it made ±20–50 % blotches that moved
          with the prepass seed (:func:`~mi_twopass.prepass.sh_cache.bright_receivers`).
      * - max_near_triangles
        - |int|

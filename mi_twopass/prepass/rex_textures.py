@@ -12,9 +12,10 @@ The build (:func:`build`) runs three steps, each a Dr.Jit wavefront:
    parameter space (ray differentials spread over the path length, projected on the tangent plane,
    divided by the parameterisation's Jacobian |∂p/∂u × ∂p/∂v|). The coarsest level at which a
    rex bucket is at most ``bucket_pixels`` pixels wide (so more than half of that) becomes the
-   bucket's *cap*, per 8×8 size cell of an analytic shape and per triangle of a mesh. Regions no eye ray saw are capped at level 0. The
-   cap is soft (step 3): it saves photons where finer buckets would not show, but a surface seen
-   only in part (a lamp shade's rim) or missed by the size pass must still converge.
+   bucket's *cap*, per 8×8 size cell of an analytic shape and per triangle of a mesh. Regions
+   no eye ray saw are capped at level 0. The cap is soft (step 3): it saves photons where finer
+   buckets would not show, but a surface seen only in part (a lamp shade's rim) or missed by
+   the size pass must still converge.
 2. **Light pass** (§3.4.2, §4.1, :func:`light_pass`): per light, an adaptive quadtree over one 2-D
    factor of Mitsuba's ``Emitter.sample_ray`` primary sample space (the direction of point and
    area lights and of the environment, the direction of a spot, the beam cross-section of a

@@ -432,10 +432,6 @@ class Patches:
         patch = dr.select(is_mesh, mesh_patch, grid_patch) + dr.select(back, back_offset, 0)
         return dr.select(valid, patch, N)
 
-    def is_diffuse_at(self, si, active=True):
-        """``mi.Bool``: ``si`` lies on a diffuse patch (its reflected radiosity is meaningful)."""
-        return dr.gather(mi.Bool, self._tables["patch_is_diffuse"], self.lookup(si, active))
-
     def uncache(self, mask) -> None:
         """Stop caching the patches of ``mask`` (gather rays landing there are traced on):
         ``is_diffuse`` and its Dr.Jit table lose them; ``is_uneven`` records them."""
