@@ -168,8 +168,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          unbiased (MIS with the BSDF ray throughout).
      * - max_patches
        - |int|
-       - Patch budget of the radiosity prepass; the patches' triangles are the near-field
-         triangles (default: 2048).
+       - Patch budget of the radiosity prepass; the cached patches' triangles are the
+         near-field triangles, with the elements' where a patch is cut (default: 2048).
      * - particles_per_patch
        - |int|
        - Particles the radiosity solver shoots per patch (default: 256). At least
