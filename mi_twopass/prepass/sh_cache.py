@@ -49,7 +49,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import sh
-from ..host_arrays import columns, jit
+from ..host_arrays import columns, jit, vectors
 from ..scene.bounds import scene_diagonal
 from ..scene.patches import build_patches
 from ..scene.view import collect_shading_points, view_diagonal
@@ -155,9 +155,7 @@ def patch_of_triangles(scene, patches, vertices, normals) -> np.ndarray:
     c = np.asarray(vertices, dtype=np.float64).mean(axis=1)
     n = np.asarray(normals, dtype=np.float64)
     eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(c).max()
-    f = lambda a: mi.Vector3f(*(jit(mi.Float, a[:, k].astype(np.float32))  # noqa: E731
-                                for k in range(3)))
-    ray = mi.Ray3f(mi.Point3f(f(c + eps * n)), f(-n))
+    ray = mi.Ray3f(vectors(c + eps * n, mi.Point3f), vectors(-n, mi.Vector3f))
     ray.maxt = mi.Float(2.0 * eps)
     si = scene.ray_intersect(ray)
     return np.asarray(patches.lookup(si, si.is_valid()), dtype=np.int64)
@@ -630,8 +628,7 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     t = np.cross(nn, s)
     d = (r * np.cos(phi))[:, None] * s + (r * np.sin(phi))[:, None] * t + z[:, None] * nn
     eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(o).max()
-    f = lambda a: mi.Vector3f(*(jit(mi.Float, a[:, k].astype(np.float32)) for k in range(3)))  # noqa
-    ray = mi.Ray3f(mi.Point3f(f(o + eps * nn)), f(d))
+    ray = mi.Ray3f(vectors(o + eps * nn, mi.Point3f), vectors(d, mi.Vector3f))
     si = scene.ray_intersect(ray)
     # only a cached surface sends B_r/π: on any other the render traces the path on
     if cached is None:
