@@ -39,6 +39,13 @@ where the *camera's* reads will meet them.
    ``DEFENSIVE``) one for every cell: the estimate stays unbiased wherever the pilot saw
    nothing. A particle drawn in cell c, uniformly within it, carries the emitter's ray
    weight / (P_c / V_c).
+5. **The particle count** (:func:`image_noise`): the same pilot particles, scored by the
+   radiance their deposits send along the camera's paths (:class:`CameraImportance`), predict
+   how much the solution's noise moves the image's mean: the noise of the light read from the
+   solution (at the paths' second and later vertices) times its share of the image beside
+   the first vertex's direct light (a particle's first deposit there), which emitter sampling
+   renders without the solution. The solve gets the particles that bring it to
+   ``radiosity.FLUX_NOISE``.
 
 On scenes_xml/mixed_room.xml the predicted relative standard deviation of the camera-weighted
 flux of 2^18 particles (:func:`predicted_noise`, against a 64-per-cell pilot) is 2.6 % with
@@ -277,7 +284,7 @@ def predicted_noise(cells_: EmissionCells, pmf, cell_of, score, particles: int) 
     score = np.asarray(score, np.float64)
     C = cells_.count
     n = np.maximum(np.bincount(cell_of, minlength=C), 1)
-    total = np.sum(np.bincount(cell_of, weights=score, minlength=C) / n)
+    total = cell_total(cells_, cell_of, score)
     ms2 = np.bincount(cell_of, weights=score ** 2, minlength=C) / n
     pmf = np.asarray(pmf, np.float64)
     second = np.sum(np.where(ms2 > 0, ms2 / np.where(pmf > 0, pmf, 1e-300), 0.0))
@@ -285,32 +292,92 @@ def predicted_noise(cells_: EmissionCells, pmf, cell_of, score, particles: int) 
     return float(np.sqrt(var / particles) / max(abs(total), 1e-300))
 
 
+class CameraImportance:
+    """What the camera's paths say of each receiver (+1 sentinel), :func:`camera_importance`:
+
+    * ``hits``: how many paths hit it, at any of their ``CAMERA_BOUNCES`` vertices (the guide's
+      W, module docstring step 2);
+    * ``first``, ``read``: per unit flux Φ received, the mean over the paths of the radiance
+      ρΦ / (πA) it sends along them (× their throughput, the BSDF weights before the hit), at
+      the first vertex and at the later ones. The light the first vertex receives straight from
+      the emitters is rendered by emitter sampling; what the later vertices send is read from
+      the solution (the far gather, the spike lists' virtual luminaires, the radiance cache).
+      So, with the particles' deposits, ``read`` gives the part of the image the solution's
+      noise is in and ``first`` the direct part beside it (:func:`image_noise`)."""
+
+    def __init__(self, hits, first, read):
+        self.hits = hits
+        self.first = first
+        self.read = read
+
+
+def radiance_per_flux(receivers) -> np.ndarray:
+    """Per receiver (+1 sentinel, 0): ρ̄ / (π A), the radiance a Lambertian receiver of area A
+    and mean albedo ρ̄ sends per unit flux it receives (0 where it has no area or does not
+    reflect diffusely)."""
+    area = np.asarray(receivers.area, np.float64)
+    albedo = np.asarray(receivers.albedo, np.float64).mean(axis=1)
+    k = np.where(area > 0, albedo / (np.pi * np.where(area > 0, area, 1.0)), 0.0)
+    return np.append(k, 0.0)
+
+
 def camera_importance(scene, sensor, receivers, seed: int, lanes: int = CAMERA_LANES
-                      ) -> np.ndarray:
-    """Per receiver (+1 sentinel): how many of ``lanes`` camera paths, each of
-    ``CAMERA_BOUNCES`` BSDF-sampled bounces from a uniform film position, hit it (module
-    docstring, step 2). ``receivers``: the elements, else the patches (``lookup``)."""
+                      ) -> CameraImportance:
+    """:class:`CameraImportance` of each receiver from ``lanes`` camera paths, each of
+    ``CAMERA_BOUNCES`` BSDF-sampled bounces from a uniform film position. ``receivers``: the
+    elements, else the patches (``lookup``)."""
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(dr.opaque(mi.UInt32, seed), lanes)  # a literal seed: kernels per seed
     ray, _ = sensor.sample_ray(0.0, 0.5, sampler.next_2d(), sampler.next_2d())
     ray = mi.Ray3f(ray)
     W = dr.zeros(mi.Float, receivers.count + 1)
+    first = dr.zeros(mi.Float, receivers.count + 1)
+    read = dr.zeros(mi.Float, receivers.count + 1)
+    throughput = dr.full(mi.Float, 1.0, lanes)
     ctx = mi.BSDFContext()
     active = dr.full(mi.Bool, True, lanes)
-    for _ in range(CAMERA_BOUNCES):
+    for bounce in range(CAMERA_BOUNCES):
         si = scene.ray_intersect(ray, active)
         active &= si.is_valid()
         rid = receivers.lookup(si, active)
-        dr.scatter_reduce(dr.ReduceOp.Add, W, 1.0, rid, active & (rid < receivers.count))
+        at = active & (rid < receivers.count)
+        dr.scatter_reduce(dr.ReduceOp.Add, W, 1.0, rid, at)
+        dr.scatter_reduce(dr.ReduceOp.Add, first if bounce == 0 else read, throughput, rid, at)
         bs, w = si.bsdf(ray).sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
         active &= (bs.pdf > 0) & dr.any(w > 0)
+        throughput = dr.select(active, throughput * (w.x + w.y + w.z) * (1.0 / 3.0), 0.0)
         ray = si.spawn_ray(si.to_world(bs.wo))
-        dr.eval(W, ray, active)
+        dr.eval(W, first, read, ray, active, throughput)
+    k = radiance_per_flux(receivers) / lanes
     W = np.asarray(W, np.float64)
     W[-1] = 0.0
-    return W
+    return CameraImportance(W, np.asarray(first, np.float64) * k, np.asarray(read, np.float64) * k)
 
 
-__all__ = ["EmissionCells", "EmissionGuide", "camera_importance", "cell_rms", "cells",
-           "fitted", "focus_cells", "moving_dims", "neighbour_max", "predicted_noise",
-           "uniform"]
+def cell_total(cells_: EmissionCells, cell_of, score) -> float:
+    """I = Σ_c mean_c(s): the total a score on step 3's common scale estimates."""
+    cell_of = np.asarray(cell_of, np.int64)
+    n = np.maximum(np.bincount(cell_of, minlength=cells_.count), 1)
+    return float(np.sum(np.bincount(cell_of, weights=np.asarray(score, np.float64),
+                                    minlength=cells_.count) / n))
+
+
+def image_noise(cells_: EmissionCells, pmf, cell_of, read, first, particles: int) -> float:
+    """The relative standard deviation of the image's mean that the noise of a solution of
+    ``particles`` particles drawn with ``pmf`` leaves, from the pilot's ``read`` and ``first``
+    scores (the particles' deposits weighted by :class:`CameraImportance`'s ``read`` and, for
+    their first deposit alone, ``first``): sd(Σ read) / (I_read + I_first), i.e. the relative
+    noise of the light read from the solution (:func:`predicted_noise`) times its share of the
+    image, the rest being the first vertex's direct light, which emitter sampling renders
+    without the solution. Light the camera sees straight from an emitter is not counted, so the
+    share is an upper bound. 0 where the camera reads nothing of the solution."""
+    i_read = cell_total(cells_, cell_of, read)
+    if not i_read > 0:
+        return 0.0
+    share = i_read / (i_read + max(cell_total(cells_, cell_of, first), 0.0))
+    return predicted_noise(cells_, pmf, cell_of, read, particles) * share
+
+
+__all__ = ["CameraImportance", "EmissionCells", "EmissionGuide", "camera_importance", "cell_rms",
+           "cell_total", "cells", "fitted", "focus_cells", "image_noise", "moving_dims",
+           "neighbour_max", "predicted_noise", "radiance_per_flux", "uniform"]

@@ -214,12 +214,15 @@ def _channel_mean(c):
 
 
 def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None,
-                 guide=None, importance=None, bounds=None, deposit_flux=True):
+                 guide=None, importance=None, bounds=None, deposit_flux=True, reads=None):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, element deposits (M+1, 3)
     or None, accounting dict, rays). ``guide``: where particles start
     (:mod:`mi_twopass.prepass.emission_guide`), else as Mitsuba samples emitter rays.
     ``importance``: per receiver (+1 sentinel), a weight; the accounting then holds each
     particle's ``cell`` and ``score``, the importance-weighted mean flux of all its deposits.
+    ``reads`` (with ``importance``): the camera's :class:`~.emission_guide.CameraImportance`,
+    whose ``read`` weights all deposits into ``read_score`` and ``first`` a particle's first
+    deposit into ``first_score`` (:func:`~.emission_guide.image_noise`).
     ``bounds``: :func:`mi_twopass.scene.bounds.scene_bounds` of ``scene`` (computed when
     ``None``). ``deposit_flux=False`` (the emission guide's pilot, which reads only ``cell`` and
     ``score``): nothing is deposited, and the deposits, the element deposits and the receivers'
@@ -240,6 +243,12 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     dr.make_opaque(score)
     importance_t = jit(mi.Float, np.asarray(importance, np.float32)) if importance is not None \
         else None
+    read_t = first_t = None
+    read_score, first_score = dr.zeros(mi.Float, n), dr.zeros(mi.Float, n)
+    if importance is not None and reads is not None:
+        read_t = jit(mi.Float, np.asarray(reads.read, np.float32))
+        first_t = jit(mi.Float, np.asarray(reads.first, np.float32))
+        dr.make_opaque(read_score, first_score)
     dr.eval(o, d, flux, rng)
 
     # reduced in Dr.Jit: np.array of a Color3f copies it in a kernel with its width as a
@@ -322,6 +331,14 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             dr.scatter_reduce(dr.ReduceOp.Add, score,
                               _channel_mean(flux) * dr.gather(mi.Float, importance_t, rid, at_recv),
                               lane, at_recv, mode=dr.ReduceMode.Direct)
+        if read_t is not None:
+            flux_mean = _channel_mean(flux)
+            dr.scatter_reduce(dr.ReduceOp.Add, read_score,
+                              flux_mean * dr.gather(mi.Float, read_t, rid, at_recv),
+                              lane, at_recv, mode=dr.ReduceMode.Direct)
+            dr.scatter_reduce(dr.ReduceOp.Add, first_score,
+                              flux_mean * dr.gather(mi.Float, first_t, rid, at_recv),
+                              lane, at_recv & (depth == 0), mode=dr.ReduceMode.Direct)
 
         bsdf = si.bsdf(ray)
         u1 = rng.next_float32()
@@ -353,7 +370,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         o, d, flux, depth, rng, active, absorbed, escaped, lane, _ = dr.while_loop(
             (o, d, flux, depth, rng, active, absorbed, escaped, lane, chunk_end), cond, body,
             label="radiosity_particles", mode="symbolic")
-        dr.eval(o, d, flux, depth, rng, active, absorbed, escaped, lane, score)
+        dr.eval(o, d, flux, depth, rng, active, absorbed, escaped, lane, score, read_score,
+                first_score)
         rays += int(dr.sum(mi.UInt64(depth))[0]) - depth_before
         spent = component_sums(absorbed, escaped)
         result["absorbed"] += spent[0]
@@ -375,6 +393,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
 
     result["cell"] = np.asarray(cell, np.int64)
     result["score"] = np.asarray(score, np.float64)
+    if read_t is not None:
+        result["read_score"] = np.asarray(read_score, np.float64)
+        result["first_score"] = np.asarray(first_score, np.float64)
     if not deposit_flux:
         result.update(moments=None, normal_moments=None, deposit_count=None, deposit_w2=None)
         return None, None, result, rays
@@ -603,9 +624,13 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
 
 #: seed offset of the emission guide's pilot particles (apart from the solve's)
 _GUIDE_SEED = 0x5EED
-#: the relative standard deviation of the camera-weighted flux a guided solve is given
-#: particles for (:func:`guided_particles`): a quarter of the 1 % bound on an image's mean, which
-#: a prepass's noise does not average away with samples per pixel
+#: the relative standard deviation of the image's mean a guided solve is given particles for
+#: (:func:`guided_particles`, :func:`emission_guide.image_noise`): a quarter of the 1 % bound on
+#: an image's mean, which a prepass's noise does not average away with samples per pixel. Until
+#: session 19 it bounded the noise of the camera-weighted flux of every deposit, the first
+#: vertex's direct light included, which emitter sampling renders without the solution:
+#: window_interior at 256² took the 8× cap, 2.03 M particles (now 1.40–1.67 M; the light read
+#: from the solution is 66 % of the image there)
 FLUX_NOISE = 0.0025
 #: most particles a guided solve adds, as a multiple of ``particles_per_patch`` x patches
 MAX_PARTICLE_GROWTH = 8
@@ -613,32 +638,39 @@ MAX_PARTICLE_GROWTH = 8
 
 def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
     """The importance-driven emission of :mod:`mi_twopass.prepass.emission_guide` for ``scene``
-    seen by ``sensor``: (guide, pilot particles, the relative standard deviation of one guided
-    particle's camera-weighted flux as the pilot predicts it), or (None, pilot particles, 0.0)
-    where every emitter is an area light, there is no sensor, the camera reads nothing the
-    pilot's particles reach, or the guide would not divide that variance by
-    ``emission_guide.MIN_GAIN`` (scenes_xml/caustic.xml's sky: 1.8×). The pilot's two stages: every cell, then the cells that scored and their
-    neighbours (:func:`emission_guide.focus_cells`)."""
+    seen by ``sensor``: (guide, pilot particles, the relative standard deviation of the image's
+    mean that one guided particle's noise leaves, as the pilot predicts it:
+    :func:`emission_guide.image_noise`), or (None, pilot particles, 0.0) where every emitter is
+    an area light, there is no sensor, the camera reads nothing the pilot's particles reach, or
+    the guide would not divide the variance of the camera-weighted flux by
+    ``emission_guide.MIN_GAIN`` (scenes_xml/caustic.xml's sky: 1.8×). The pilot's two stages:
+    every cell, then the cells that scored and their neighbours
+    (:func:`emission_guide.focus_cells`)."""
     emitters = scene.emitters()
     if sensor is None or not emitters or \
             all(kind == "surface" for kind in emitter_kinds(scene)):
         return None, 0, 0.0
     receivers = elements if elements is not None else patches
-    W = emission_guide.camera_importance(scene, sensor, receivers, seed)
-    if not W.sum() > 0:
+    camera = emission_guide.camera_importance(scene, sensor, receivers, seed)
+    if not camera.hits.sum() > 0:
         return None, 0, 0.0
     bounds = scene_bounds(scene)
     cells = emission_guide.cells(scene)
-    cell_of, score, traced = [], [], 0
+    cell_of, score, read, first, traced = [], [], [], [], 0
 
     def run(pilot_guide, n, stage):
         nonlocal traced
         _, _, result, _ = _trace_batch(scene, patches, n, 0, seed + _GUIDE_SEED + stage, n,
                                        DEFAULT_MAX_BOUNCES, elements, guide=pilot_guide,
-                                       importance=W, bounds=bounds, deposit_flux=False)
+                                       importance=camera.hits, bounds=bounds,
+                                       deposit_flux=False, reads=camera)
         cell_of.append(result["cell"])
         # the common scale f·V_c: x the pilot's probability of the cell x its particle count
-        score.append(result["score"] * pilot_guide.pmf[result["cell"]] * n)
+        scale = pilot_guide.pmf[result["cell"]] * n
+        score.append(result["score"] * scale)
+        zeros = np.zeros(len(result["cell"]))
+        read.append(result.get("read_score", zeros) * scale)
+        first.append(result.get("first_score", zeros) * scale)
         traced += n
 
     run(emission_guide.uniform(cells),
@@ -648,6 +680,7 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
         run(emission_guide.EmissionGuide(cells, lit.astype(np.float64)),
             emission_guide.PILOT_FOCUS * int(lit.sum()), 1)
     cell_of, score = np.concatenate(cell_of), np.concatenate(score)
+    read, first = np.concatenate(read), np.concatenate(first)
     guide = emission_guide.fitted(cells, cell_of, score)
     if guide is None:
         return None, traced, 0.0
@@ -656,12 +689,12 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
                                            cell_of, score, 1)
     if guided ** 2 * emission_guide.MIN_GAIN > plain ** 2:
         return None, traced, 0.0  # Mitsuba's own emission is about as good: no guide
-    return guide, traced, guided
+    return guide, traced, emission_guide.image_noise(cells, guide.pmf, cell_of, read, first, 1)
 
 
 def guided_particles(n_particles: int, noise_per_particle: float) -> int:
-    """The particle count that brings the predicted relative standard deviation of the camera-
-    weighted flux (:func:`guide_emission`) to ``FLUX_NOISE``: at least ``n_particles``, at most
+    """The particle count that brings the predicted relative standard deviation of the image's
+    mean (:func:`guide_emission`) to ``FLUX_NOISE``: at least ``n_particles``, at most
     ``MAX_PARTICLE_GROWTH`` times it."""
     need = math.ceil((noise_per_particle / FLUX_NOISE) ** 2) if noise_per_particle > 0 else 0
     return int(min(max(n_particles, need), MAX_PARTICLE_GROWTH * n_particles))
@@ -813,8 +846,9 @@ class RadiosityPrepass:
     #: importance-driven emission (:func:`guide_emission`): its cells and pilot particles
     guide_cells: int = 0
     guide_particles: int = 0
-    #: the relative standard deviation of the camera-weighted flux the pilot predicts
-    flux_noise: float = 0.0
+    #: the relative standard deviation of the image's mean the pilot predicts the solution's
+    #: noise leaves (:func:`emission_guide.image_noise`)
+    mean_noise: float = 0.0
     #: taken from a memo another prepass of the same scene and camera filled (:func:`build`)
     reused: bool = False
 
@@ -843,7 +877,7 @@ class RadiosityPrepass:
                 "guided_emission_cells": self.guide_cells,
                 "guide_pilot_particles": self.guide_particles,
                 "radiosity_particles": int(sol.particles),
-                "predicted_flux_noise": self.flux_noise,
+                "predicted_mean_noise": self.mean_noise,
                 "radiosity_reused": self.reused,
                 # patches / elements cut by geometry: traced on, not read (light-leak guard)
                 "split_patches": int(np.sum(sol.patches.is_split)),
@@ -910,7 +944,7 @@ def build(scene, settings: RadiositySettings, seed: int, progress: bool = True,
                            seconds=time.perf_counter() - t0, simplified=simplified,
                            guide_cells=guide.cells.count if guide is not None else 0,
                            guide_particles=pilot,
-                           flux_noise=noise / math.sqrt(n_particles) if guide else 0.0)
+                           mean_noise=noise / math.sqrt(n_particles) if guide else 0.0)
     if memo is not None:
         memo.put(key, pre)
     return pre

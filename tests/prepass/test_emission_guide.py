@@ -155,6 +155,44 @@ def test_a_sun_through_a_hole_is_unbiased_and_far_less_noisy_when_guided():
     assert rel_sd < plain_rel_sd / 3, (rel_sd, plain_rel_sd)
 
 
+def test_first_vertex_weights_are_the_radiance_a_receiver_sends_per_unit_flux():
+    """A grey floor fills the camera's view and nothing is above it: every camera path's first
+    vertex is on the floor, so Σ_r first_r · A_r = ρ/π (a flux Φ spread evenly, Φ·A_r/A per
+    receiver, is seen as the radiance ρΦ/(πA)); its bounces escape, so nothing is read."""
+    grey = 0.5
+    scene = mi.load_dict({
+        "type": "scene",
+        "floor": {**slab(0, 0, 0, 4, 4),
+                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": grey}}},
+        "camera": {"type": "perspective", "fov": 60,
+                   "to_world": T().look_at(origin=[0, 0, 0.9], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+    })
+    patches = R.build_patches(scene, max_patches=64)
+    camera = G.camera_importance(scene, scene.sensors()[0], patches, seed=0, lanes=1 << 12)
+    area = np.append(patches.area, 0.0)
+    assert math.isclose(float(np.sum(camera.first * area)), grey / math.pi, rel_tol=1e-5)
+    assert camera.read.sum() == 0.0
+    assert camera.hits.sum() == 1 << 12
+
+
+def test_image_noise_is_the_read_lights_noise_times_its_share_of_the_image():
+    """One cell of C brings all the light read from the solution (score s), another the direct
+    light at the first vertex (t); drawn uniformly, the read total's relative noise per
+    particle is √(C − 1) and its share of the image s / (s + t)."""
+    cells = G.cells(window_scene(sun()))
+    C = cells.count
+    cell_of = np.arange(C)
+    read, first = np.zeros(C), np.zeros(C)
+    read[3], first[700] = 1.0, 3.0
+    pmf = np.full(C, 1.0 / C)
+    assert math.isclose(G.image_noise(cells, pmf, cell_of, read, first, 1),
+                        math.sqrt(C - 1) / 4, rel_tol=1e-9)
+    assert math.isclose(G.image_noise(cells, pmf, cell_of, read, first, 100),
+                        math.sqrt(C - 1) / 40, rel_tol=1e-9)
+    assert G.image_noise(cells, pmf, cell_of, np.zeros(C), first, 1) == 0.0
+
+
 @pytest.mark.parametrize("noise, expected", [(0.0, 1000), (0.0025 * math.sqrt(500), 1000),
                                              (0.0025 * math.sqrt(4000), 4000),
                                              (1.0, 8000)])
