@@ -243,11 +243,11 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     dr.make_opaque(score)
     importance_t = jit(mi.Float, np.asarray(importance, np.float32)) if importance is not None \
         else None
-    read_t = first_t = None
-    read_score, first_score = dr.zeros(mi.Float, n), dr.zeros(mi.Float, n)
+    read_t = first_t = read_score = first_score = None
     if importance is not None and reads is not None:
         read_t = jit(mi.Float, np.asarray(reads.read, np.float32))
         first_t = jit(mi.Float, np.asarray(reads.first, np.float32))
+        read_score, first_score = dr.zeros(mi.Float, n), dr.zeros(mi.Float, n)
         dr.make_opaque(read_score, first_score)
     dr.eval(o, d, flux, rng)
 
@@ -370,8 +370,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         o, d, flux, depth, rng, active, absorbed, escaped, lane, _ = dr.while_loop(
             (o, d, flux, depth, rng, active, absorbed, escaped, lane, chunk_end), cond, body,
             label="radiosity_particles", mode="symbolic")
-        dr.eval(o, d, flux, depth, rng, active, absorbed, escaped, lane, score, read_score,
-                first_score)
+        dr.eval(o, d, flux, depth, rng, active, absorbed, escaped, lane, score,
+                *((read_score, first_score) if read_t is not None else ()))
         rays += int(dr.sum(mi.UInt64(depth))[0]) - depth_before
         spent = component_sums(absorbed, escaped)
         result["absorbed"] += spent[0]
