@@ -4,7 +4,9 @@
         --res 32 --spp 256 -k 40 path radiosity_gather spike_gather
 
 Every render uses a fresh integrator and its own seed (1000 + 17·k), so a prepass's randomness
-is part of the spread; the same seeds for every spec. Prints each spec's mean ± standard error,
+is part of the spread; the same seeds for every spec (``ptracer`` as the first spec: the
+reference where ``path`` cannot sample some light, docs/results/sun-behind-glass-2026-11-27).
+Prints each spec's mean ± standard error,
 its ratio to the first spec's and z = Δ / sqrt(se₁² + se²). Where ``check`` is noise-limited
 (fireflies), this is how a bias of a percent is told from noise (README "Right on real scenes").
 """
@@ -26,8 +28,11 @@ def main():
     ap.add_argument("--res", type=int, default=32, help="film's longer side in pixels")
     ap.add_argument("--spp", type=int, default=256)
     ap.add_argument("-k", type=int, default=40, help="independent renders per spec")
+    ap.add_argument("-D", action="append", default=[], metavar="KEY=VALUE",
+                    help="scene parameter ($KEY in the XML)")
     a = ap.parse_args()
-    scene = load_scene(a.scene, film_res=a.res)
+    params = dict(d.split("=", 1) for d in a.D)
+    scene = load_scene(a.scene, film_res=a.res, **params)
     ref = None
     for spec in a.specs:
         means = np.array([np.mean(np.asarray(mi.render(scene, integrator=make_integrator(spec),

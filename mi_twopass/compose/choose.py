@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 
 import drjit as dr
 import mitsuba as mi
@@ -16,6 +17,7 @@ import numpy as np
 from ..evaluation.metrics import BLOCK
 from ..scene.lambertian import is_lambertian
 from . import cost
+from .unsampled import WARN_SHARE, unsampled_radiance
 from .pilot import (RUNS, PilotSettings, choose_blocks, choose_pixels, path_reference, pilot,
                     pilot_samples, pixel_means, probe_render, relative_variance, run_samples,
                     samples_array)
@@ -191,6 +193,16 @@ def traits(scene, max_depth) -> cost.SceneTraits:
                      for s in scene.shapes())
     return cost.SceneTraits(emitters=len(scene.emitters()), lambertian=lambertian,
                             max_depth=max_depth)
+
+
+def unsampled_share(scene, sensor, seed: int, path_values) -> float:
+    """The share of the image's mean, at least, that no composition but rexes renders (nor
+    path): :func:`~mi_twopass.compose.unsampled.unsampled_radiance` over itself plus the path
+    pilot's mean (``path_values``: its samples, which lack that light)."""
+    missing = unsampled_radiance(scene, sensor, seed)
+    if missing <= 0.0:
+        return 0.0
+    return missing / (missing + max(float(np.mean(path_values)), 0.0))
 
 
 def _no_pilot(prepassed, reason: str) -> dict:
@@ -461,10 +473,18 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     name = check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, decision,
                       cost.CHECK_BUDGET * path_seconds)
     decision.chosen = runs[name][0]
+    decision.unsampled = unsampled_share(scene, sensor, seed, path_run.values)
+    if decision.unsampled >= WARN_SHARE and decision.chosen.caustics != "rex":
+        warnings.warn(
+            f"twopass: at least {decision.unsampled:.1%} of this image is light that delta "
+            "emitters send through specular surfaces onto diffuse ones, which path (and so the "
+            f"composition chosen, {decision.chosen.name}) cannot sample: set caustics=\"rex\" "
+            "to render it (mi_twopass.compose.unsampled)", stacklevel=2)
     pilot_seconds = time.perf_counter() - t_start - build_seconds
     return Choice(decision, runs[name][1], {"pilot": pilot_seconds,
                                              "prepasses": build_seconds})
 
 
 __all__ = ["Choice", "backend_name", "candidate_estimator", "check_bias", "choose", "fit_frozen",
-           "path_sum_estimator", "path_without_pilot", "probe_gate", "sample_gates", "traits"]
+           "path_sum_estimator", "path_without_pilot", "probe_gate", "sample_gates", "traits",
+           "unsampled_share"]

@@ -642,6 +642,10 @@ class Decision:
     frozen: dict = field(default_factory=dict)
     #: path's render time as probed before the pilot (:class:`RenderProbe`); None: no probe
     probe: RenderProbe | None = None
+    #: the share of the image's mean, at least, of light path cannot sample (delta emitters
+    #: through specular surfaces, :mod:`mi_twopass.compose.unsampled`); 0.0 where none was
+    #: found or no pilot ran
+    unsampled: float = 0.0
 
     def reason(self) -> str:
         if self.chosen.name not in self.measured:  # forced, or no prepass could fit

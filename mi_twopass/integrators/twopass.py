@@ -274,6 +274,7 @@ class TwoPassChooser(TwoPassIntegrator):
             "twopass_probe": None if d.probe is None else {
                 "fixed_seconds": d.probe.fixed, "seconds_per_spp": d.probe.per_spp,
                 "render_seconds": d.probe.seconds(d.spp)},
+            "twopass_path_unsampled_share": d.unsampled,
             "pilot_seconds": choice.seconds["pilot"],
         }
 
