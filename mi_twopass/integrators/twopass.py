@@ -85,13 +85,23 @@ class TwoPassChooser(TwoPassIntegrator):
     (caustics=off: path traced, not dropped). With max_depth = 0 the image is black and
     nothing is built.
 
+    **Light path cannot sample.** Light a point, spot or directional light sends through
+    specular surfaces onto diffuse ones (a sun behind a window pane) is missing from ``path``
+    at any sample count, so from its pilot and from every composition but rexes. Once the
+    pilot has run, it is light-traced to the camera (:mod:`mi_twopass.compose.unsampled`,
+    a few ms) and its share of the image, a lower bound, is ``twopass_path_unsampled_share``.
+    Where that is at least 1 % and the composition chosen is not rexes, twopass warns. It
+    does not switch to rexes by itself (its bias test measures against path, which lacks
+    that light); ``caustics="rex"`` renders it.
+
     ``integrator.stats`` holds the chosen estimator's statistics and ``twopass_choice`` (the
     composition), ``twopass_reason`` (the predicted figures that decided), ``twopass_candidates``
     (per candidate built: prepass seconds, seconds per spp, relative variance, bias², score),
     ``twopass_skipped`` (per composition not built: why), ``twopass_bias_checks`` (per
     candidate tested again: samples per pixel, b², its standard error, outcome),
     ``twopass_probe`` (path's render time as probed: fixed part, seconds per spp, the
-    render's; None where not probed), ``pilot_seconds`` (the probe, the pilot and the tests) and
+    render's; None where not probed), ``twopass_path_unsampled_share`` (above),
+    ``pilot_seconds`` (the probe, the pilot and the tests) and
     ``prepass_seconds`` (the pilot and every prepass built, the chosen one's included).
 
     .. pluginparameters::
