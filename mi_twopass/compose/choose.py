@@ -19,8 +19,8 @@ from ..scene.lambertian import is_lambertian
 from . import cost
 from .unsampled import WARN_SHARE, unsampled_radiance
 from .pilot import (RUNS, PilotSettings, choose_blocks, choose_pixels, path_reference, pilot,
-                    pilot_samples, pixel_means, probe_render, relative_variance, run_samples,
-                    samples_array)
+                    pilot_samples, pixel_count, pixel_means, probe_render, relative_variance,
+                    run_samples, samples_array)
 
 
 class Choice:
@@ -330,7 +330,8 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     if early is not None:
         early.seconds["pilot"] = time.perf_counter() - t_start
         return early
-    pixels = choose_pixels(sensor, settings.pixels, seed)
+    width, height = (int(v) for v in sensor.film().crop_size())
+    pixels = choose_pixels(sensor, pixel_count(settings, spp, width * height), seed)
     film_pixels = pixels.film_pixels
     path_row = cost.COMPOSITIONS[0]
     path_integ = candidate(path_row)

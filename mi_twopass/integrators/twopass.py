@@ -55,7 +55,9 @@ class TwoPassChooser(TwoPassIntegrator):
            time does not predict, the same two tests in seconds, against path's render
            timed at 1 spp (``path_probe``:
            :func:`~mi_twopass.compose.cost.too_dear_in_seconds`)
-        1. pilot path trace (``pilot_pixels`` pixels × 144 samples, Mitsuba's path estimator)
+        1. pilot path trace (``pilot_pixels`` pixels × 144 samples, fewer pixels where that
+           would pass 5 % of the render's samples, at least 256:
+           :func:`mi_twopass.compose.pilot.pixel_count`; Mitsuba's path estimator)
            with its light split into direct, caustic (L S+ D ...) and other indirect parts,
            each part's relative variance measured
         2. for each composition the forced choices allow, by its best case (path's variance
@@ -120,7 +122,8 @@ class TwoPassChooser(TwoPassIntegrator):
        - "auto" (default), "off" (caustic paths traced by BSDF sampling) or "rex".
      * - pilot_pixels
        - |int|
-       - Pixels of the pilot (default: 1024; the whole film if smaller).
+       - Pixels of the pilot (default: 1024; the whole film if smaller; fewer, down to 256,
+         where 144 samples of each would pass 5 % of the render's samples).
      * - pilot_budget
        - |float|
        - The least share of the time ``path`` is predicted to need for the render that the

@@ -116,3 +116,18 @@ def test_the_render_probe_splits_paths_time_into_a_fixed_part_and_one_per_sample
     np.asarray(integ.render(scene, spp=16, seed=5))
     seconds = time.perf_counter() - t0
     assert 0.25 * seconds < probe.seconds(16) < 4.0 * seconds
+
+
+def test_a_short_render_gets_a_smaller_pilot_never_below_the_floor():
+    """pixel_count: the settings' pixels where their 144 samples each are at most PIXEL_SHARE
+    of the render's samples; fewer for a short render, down to MIN_PIXELS; never more than the
+    settings ask for."""
+    s = pl.PilotSettings(pixels=1024, samples=16)
+    per_pixel = 16 * sum(pl.RUNS)
+    film = 256 * 256
+    assert pl.pixel_count(s, 256, film) == 1024
+    spp = 16
+    assert pl.pixel_count(s, spp, film) == int(pl.PIXEL_SHARE * spp * film / per_pixel) < 1024
+    assert pl.pixel_count(s, spp, film) * per_pixel <= pl.PIXEL_SHARE * spp * film
+    assert pl.pixel_count(s, 1, film) == pl.MIN_PIXELS
+    assert pl.pixel_count(pl.PilotSettings(pixels=64, samples=16), 1, film) == 64
