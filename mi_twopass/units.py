@@ -39,3 +39,13 @@ def reflected_radiosity(albedo, E):
 def reflected_radiance(albedo, E):
     """L = ρ·E/π (diffuse reflection of irradiance E, as radiance)."""
     return albedo * E * INV_PI
+
+
+def channel_mean(c):
+    """The mean of an RGB colour's three channels, per lane (a ``mi.Color3f``: how the suite
+    weighs a colour as one number, e.g. a particle's flux). Not ``dr.mean``: on a Color3f,
+    Dr.Jit 1.5 computes it as the sum times the array's width over three times its width, two
+    literals that made the radiosity particle kernel new for every batch size (the emission
+    guide's pilots: a kernel per seed on scenes_xml/mixed_room.xml,
+    ``tools/kernel_recompiles.py --first-seed``)."""
+    return (c.x + c.y + c.z) * (1.0 / 3.0)

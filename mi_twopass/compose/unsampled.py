@@ -58,6 +58,7 @@ from ..rays import spawn_ray, spawn_ray_to
 from ..scene.bounds import scene_bounds
 from ..scene.emission import emitter_rays
 from ..seeds import splitmix64
+from ..units import channel_mean
 
 #: particles of the estimate
 PARTICLES = 1 << 16
@@ -117,8 +118,7 @@ def unsampled_radiance(scene, sensor, seed: int = 0, particles: int = PARTICLES)
             si, mi.Point2f(rng.next_float32(), rng.next_float32()), at)
         at &= (ds.pdf > 0) & ~scene.ray_test(spawn_ray_to(si, ds.p, scale), at)
         value = flux * bsdf.eval(ctx, si, si.to_local(ds.d), at) * mi.Color3f(importance)
-        seen += dr.select(at & dr.all(dr.isfinite(value)),
-                          (value.x + value.y + value.z) * (1.0 / 3.0), 0.0)
+        seen += dr.select(at & dr.all(dr.isfinite(value)), channel_mean(value), 0.0)
         bs, w = bsdf.sample(ctx, si, rng.next_float32(),
                             mi.Point2f(rng.next_float32(), rng.next_float32()), active)
         active &= mi.has_flag(bs.sampled_type, _DELTA_BSDF) & (bs.pdf > 0) & \

@@ -65,6 +65,7 @@ import numpy as np
 
 from ..host_arrays import jit
 from ..scene.emission import emitter_kinds
+from ..units import channel_mean
 
 #: cells per dimension where one (u2 or u3) pair of an emitter's samples moves its rays
 GRID_2D = 32
@@ -345,7 +346,7 @@ def camera_importance(scene, sensor, receivers, seed: int, lanes: int = CAMERA_L
         dr.scatter_reduce(dr.ReduceOp.Add, first if bounce == 0 else read, throughput, rid, at)
         bs, w = si.bsdf(ray).sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
         active &= (bs.pdf > 0) & dr.any(w > 0)
-        throughput = dr.select(active, throughput * (w.x + w.y + w.z) * (1.0 / 3.0), 0.0)
+        throughput = dr.select(active, throughput * channel_mean(w), 0.0)
         ray = si.spawn_ray(si.to_world(bs.wo))
         dr.eval(W, first, read, ray, active, throughput)
     k = radiance_per_flux(receivers) / lanes

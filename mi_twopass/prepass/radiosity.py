@@ -204,15 +204,6 @@ def _sample_emission(scene, bounds, rng, active, guide=None):
     return ray.o, ray.d, mi.Color3f(w), cell
 
 
-def _channel_mean(c):
-    """The mean of a colour's three channels, per lane. Not ``dr.mean``: on a Color3f, Dr.Jit
-    1.5 computes it as the sum times the array's width over three times its width, two
-    literals that made the particle kernel new for every batch size (the emission guide's
-    pilots: a kernel per seed on scenes_xml/mixed_room.xml, ``tools/kernel_recompiles.py
-    --first-seed``)."""
-    return (c.x + c.y + c.z) * (1.0 / 3.0)
-
-
 def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None,
                  guide=None, importance=None, bounds=None, deposit_flux=True, reads=None):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, element deposits (M+1, 3)
@@ -312,16 +303,17 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             if deposit_flux:
                 deposit(target_e, rid, flux, hit & (rid < M))
         at_recv = hit & (rid < R)
+        flux_mean = units.channel_mean(flux)
         if deposit_flux:
             offset = (si.p - recv.gather("center", rid, at_recv)) \
                 * dr.gather(mi.Float, recv_inv_r, rid, at_recv)
-            deposit(target_m, rid, offset * _channel_mean(flux), at_recv)
+            deposit(target_m, rid, offset * flux_mean, at_recv)
             # the normal of the receiver's side (the side the particle arrives on)
             side_n = dr.select(dr.dot(ray.d, si.n) < 0, si.n, -si.n)
-            deposit(target_nrm, rid, side_n * _channel_mean(flux), at_recv)
+            deposit(target_nrm, rid, side_n * flux_mean, at_recv)
             dr.scatter_reduce(dr.ReduceOp.Add, target_n, mi.UInt32(1), rid, at_recv,
                               mode=_DEPOSIT_MODE)
-            w2 = dr.clip(dr.round(mi.Float64(dr.square(_channel_mean(flux))) * inv_quantum_w2), 0.0,
+            w2 = dr.clip(dr.round(mi.Float64(dr.square(flux_mean)) * inv_quantum_w2), 0.0,
                          _FIXED_CLAMP)
             dr.scatter_reduce(dr.ReduceOp.Add, target_w2, mi.Int64(w2), rid, at_recv,
                               mode=_DEPOSIT_MODE)
@@ -329,10 +321,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             # each lane adds to its own slot; Expand (the LLVM default for a small target)
             # would bake the batch's width into the kernel, a kernel per guide pilot size
             dr.scatter_reduce(dr.ReduceOp.Add, score,
-                              _channel_mean(flux) * dr.gather(mi.Float, importance_t, rid, at_recv),
+                              flux_mean * dr.gather(mi.Float, importance_t, rid, at_recv),
                               lane, at_recv, mode=dr.ReduceMode.Direct)
         if read_t is not None:
-            flux_mean = _channel_mean(flux)
             dr.scatter_reduce(dr.ReduceOp.Add, read_score,
                               flux_mean * dr.gather(mi.Float, read_t, rid, at_recv),
                               lane, at_recv, mode=dr.ReduceMode.Direct)
