@@ -269,7 +269,7 @@ def probe_gate(scene, sensor, seed: int, spp: int, allowed, candidate,
     path_integ = candidate(path_row)
     probed = probe_render(scene, sensor, path_integ, seed + _PROBE_SEED)
     dear = cost.too_dear_in_seconds(probed, spp, pilot_samples(settings, pixels),
-                                    pixels.film_pixels, len(RUNS) + 1, budget_factor)
+                                    pixels.film_pixels, len(RUNS), budget_factor)
     if dear is None:
         return None, probed
     decision = cost.Decision(chosen=path_row, spp=spp,

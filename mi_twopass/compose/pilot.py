@@ -7,18 +7,20 @@ relative variance of one sample. Both come from a pilot: P pixels of the film dr
 candidate's ``sample`` exactly as its render would trace them.
 
 Cost per sample. A Dr.Jit call costs a fixed part (tracing the loop in Python, looking up the
-compiled kernel, launching it) plus a part per lane. The pilot runs the same pixels with M
-samples each (compiling the kernels), then twice with 4M, then once with one sample of
-:data:`FIXED_PIXELS` pixels, whose time t₀ is the fixed part alone: c = (min(t₁, t₂) − t₀) /
-(4·P·M) seconds per lane (the minimum of two keeps a hiccup of a busy machine out; at least
-:data:`MIN_LANE_SHARE` of min(t₁, t₂) counts as per-lane, should t₀ read high); a full-film
-sample costs c × film pixels. The fixed part is not small: tracing a loop that calls every
+compiled kernel, launching it) plus a part per lane, which is what a render's cost per sample
+is made of. The pilot runs the same pixels twice, with M and then 8M samples each, and takes
+the per-lane part from Dr.Jit's kernel history: the execution time of the call's kernels,
+which leaves out the Python tracing, the launch and any compilation, over its lanes, the
+smaller of the two runs' (the minimum keeps a hiccup of a busy machine out); a full-film sample
+costs that × film pixels. The fixed part is not small: tracing a loop that calls every
 emitter's sampling code grows with the emitters, and at 256² it was 60 % of a 4M run on
-many_lights (0.025 of 0.042 s: the pilot had put path at 0.050 s per sample where its renders
-take 0.0146), 16 % on the office, 13 % on the Cornell box; with t₀ taken off, 0.017, 0.035 and
-0.0137 s against renders' 0.0146, 0.034 and 0.0135 s per sample. (The slope between an M and a
-4M run, which also leaves the fixed part out, moved by 6× between repeats on a loaded 2-core
-machine: its two times are both large and close.)
+many_lights (0.025 of 0.042 s: a pilot that divided wall time by lanes put path at 0.050 s per
+sample where its renders take 0.0146). Until session 19 the pilot timed M, 4M and 4M runs and
+one of 16 pixels × 1 sample for the fixed part, subtracted from the faster 4M run: the same
+per-lane cost within a few per cent on the office (path 5.07e-7 s against 5.0–5.1e-7 now, its
+render's slope 4.96e-7), steadier on many_lights (1.7–2.7e-7 against 2.2–2.3e-7, the render's
+1.9e-7), in two calls instead of four: path's pilot 0.107 → 0.090 s on the office, 0.16 →
+0.10 s on many_lights (``tools`` session 19, ad hoc).
 
 Relative variance. For pixel p, channel k, the sample variance s²_pk of the 9M samples, over
 the squared pixel value R_pk of a reference shared by all candidates, with relMSE's ε
@@ -52,7 +54,7 @@ _SALT_BLOCKS = 0xB10C
 @dataclass(frozen=True)
 class PilotSettings:
     """Pixels drawn from the film and samples per pixel of the first of the two runs (the
-    two timed runs take 4× as many). Defaults: 1024 pixels × (16 + 64 + 64) samples."""
+    second takes 8× as many). Defaults: 1024 pixels × (16 + 128) samples."""
 
     pixels: int = 1024
     samples: int = 16
@@ -176,34 +178,36 @@ class PilotRun:
 
 
 #: a pilot's runs, in multiples of ``PilotSettings.samples`` per pixel (:func:`pilot`)
-RUNS = (1, 4, 4)
-#: pixels (one sample each) of the run that times a call's fixed part (module docstring)
-FIXED_PIXELS = 16
-#: the least share of a timed run counted as its per-lane part
-MIN_LANE_SHARE = 0.1
+RUNS = (1, 8)
 
 
 def pilot_samples(settings: PilotSettings, pixels: PilotPixels) -> int:
-    """The camera samples one candidate's pilot traces: its pixels × (M + 4M + 4M)."""
+    """The camera samples one candidate's pilot traces: its pixels × (M + 8M)."""
     return len(pixels.index) * settings.samples * sum(RUNS)
 
 
+def timed_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, seed: int):
+    """:func:`run_samples` with Dr.Jit's kernel history on: (values, seconds, the execution
+    seconds of the call's kernels, or its seconds where the history has none)."""
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()  # reading it clears it
+        values, seconds = run_samples(scene, sensor, pixels, samples, estimator, seed)
+        history = dr.kernel_history()
+    executing = sum(k.get("execution_time", 0.0) for k in history) / 1000.0
+    return values, seconds, (executing if executing > 0.0 else seconds)
+
+
 def pilot(scene, sensor, pixels: PilotPixels, settings: PilotSettings, estimator, seed: int):
-    """Run ``estimator`` with M, 4M and 4M samples per pixel, then once on
-    :data:`FIXED_PIXELS` pixels for the fixed part (see the module docstring) →
+    """Run ``estimator`` with M and 8M samples per pixel; the cost per lane is the smaller of
+    the two runs' kernel execution time over their lanes (module docstring) →
     :class:`PilotRun`."""
     m = settings.samples
-    # the first run compiles the kernels; the faster of the others is timed
-    runs = [run_samples(scene, sensor, pixels, k * m, estimator, seed + i)
+    runs = [timed_samples(scene, sensor, pixels, k * m, estimator, seed + i)
             for i, k in enumerate(RUNS)]
-    few = PilotPixels(index=pixels.index[:FIXED_PIXELS], width=pixels.width,
-                      height=pixels.height)
-    _, fixed = run_samples(scene, sensor, few, 1, estimator, seed + len(RUNS))
-    lanes, seconds = min(((len(pixels.index) * k * m, t) for (_, t), k in
-                          zip(runs[1:], RUNS[1:])), key=lambda lt: lt[1] / lt[0])
-    per_lane = max(seconds - fixed, MIN_LANE_SHARE * seconds) / lanes
-    return PilotRun(values=np.concatenate([v for v, _ in runs], axis=1),
-                    seconds_per_lane=per_lane, seconds=sum(t for _, t in runs[1:]) + fixed,
+    per_lane = min(executing / (len(pixels.index) * k * m)
+                   for (_, _, executing), k in zip(runs, RUNS))
+    return PilotRun(values=np.concatenate([v for v, _, _ in runs], axis=1),
+                    seconds_per_lane=per_lane, seconds=sum(t for _, t, _ in runs),
                     lanes=pilot_samples(settings, pixels))
 
 
