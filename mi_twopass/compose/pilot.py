@@ -20,7 +20,7 @@ one of 16 pixels × 1 sample for the fixed part, subtracted from the faster 4M r
 per-lane cost within a few per cent on the office (path 5.07e-7 s against 5.0–5.1e-7 now, its
 render's slope 4.96e-7), steadier on many_lights (1.7–2.7e-7 against 2.2–2.3e-7, the render's
 1.9e-7), in two calls instead of four: path's pilot 0.107 → 0.090 s on the office, 0.16 →
-0.10 s on many_lights (``tools`` session 19, ad hoc).
+0.10 s on many_lights (ad hoc, session 19: docs/results/twopass-pilot-pixels-2026-11-27).
 
 Relative variance. For pixel p, channel k, the sample variance s²_pk of the 9M samples, over
 the squared pixel value R_pk of a reference shared by all candidates, with relMSE's ε
