@@ -186,14 +186,24 @@ def pilot_samples(settings: PilotSettings, pixels: PilotPixels) -> int:
     return len(pixels.index) * settings.samples * sum(RUNS)
 
 
-def timed_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, seed: int):
-    """:func:`run_samples` with Dr.Jit's kernel history on: (values, seconds, the execution
-    seconds of the call's kernels, or its seconds where the history has none)."""
+def with_kernel_history(call):
+    """``call()`` with Dr.Jit's kernel history on → (its result, the seconds its kernels spent
+    compiling (codegen and backend), the seconds they spent executing)."""
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
         dr.kernel_history()  # reading it clears it
-        values, seconds = run_samples(scene, sensor, pixels, samples, estimator, seed)
+        result = call()
         history = dr.kernel_history()
+    compiling = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)
+                    for k in history) / 1000.0
     executing = sum(k.get("execution_time", 0.0) for k in history) / 1000.0
+    return result, compiling, executing
+
+
+def timed_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, seed: int):
+    """:func:`run_samples` with the kernel history on: (values, seconds, the execution seconds
+    of the call's kernels, or its seconds where the history has none)."""
+    (values, seconds), _, executing = with_kernel_history(
+        lambda: run_samples(scene, sensor, pixels, samples, estimator, seed))
     return values, seconds, (executing if executing > 0.0 else seconds)
 
 
@@ -220,16 +230,12 @@ def probe_render(scene, sensor, integ, seed: int):
     execution time is the part that grows with the samples per pixel (an upper bound of it:
     one sample per pixel fills a GPU least); the rest, recording the loop, launching, the
     film's development and the copy back, is the fixed part."""
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        dr.kernel_history()  # reading it clears it
+    def timed_render():
         t0 = time.perf_counter()
-        image = integ.render(scene, sensor, seed=seed, spp=1)
-        np.asarray(image)  # waits for the kernels
-        wall = time.perf_counter() - t0
-        history = dr.kernel_history()
-    compiling = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)
-                    for k in history) / 1000.0
-    executing = sum(k.get("execution_time", 0.0) for k in history) / 1000.0
+        np.asarray(integ.render(scene, sensor, seed=seed, spp=1))  # waits for the kernels
+        return time.perf_counter() - t0
+
+    wall, compiling, executing = with_kernel_history(timed_render)
     work = max(wall - compiling, 0.0)
     per_spp = min(executing, work)
     return RenderProbe(fixed=work - per_spp, per_spp=per_spp)
