@@ -119,9 +119,15 @@ class CachedReceivers:
 
     def at(self, si, active=True):
         """``mi.Bool``: the cache holds the light reflected at ``si`` toward its ray."""
+        return self.receiver_at(si, active)[0]
+
+    def receiver_at(self, si, active=True):
+        """``(cached, receiver id)`` at ``si``: :meth:`at` and the receiver it read (the
+        count, an invalid id, where there is none), looked up once."""
         ok = mi.Bool(active) & si.is_valid()
         ok &= lambertian_flags(si.bsdf().flags())
-        return ok & dr.gather(mi.Bool, self._table, self.receivers.lookup(si, ok), ok)
+        rid = self.receivers.lookup(si, ok)
+        return ok & dr.gather(mi.Bool, self._table, rid, ok), rid
 
 
 def bright_receivers(B_reflected, area, is_diffuse, contrast: float) -> np.ndarray:

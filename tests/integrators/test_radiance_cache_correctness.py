@@ -192,6 +192,28 @@ def test_non_diffuse_surfaces_agree_with_path(walls_kind, panel, pose):
     assert np.all(diff <= allowed), (means, allowed)
 
 
+def test_paths_past_an_uncached_surface_end_on_the_coarse_solution():
+    """A cache vertex's BSDF ray that meets an uncached surface (a roughplastic sheet) traces
+    on; past it, a ray that lands at least alpha away on a cached wall reads the coarse
+    solution's B_r/π there and ends (GSII's far gather) instead of running on to Russian
+    roulette. Such reads happen (stats ``solution_reads``), and the 8×8-block means still agree
+    with ``path`` within 4σ + the stated bias."""
+    glossy = ("left", "right", "ceiling", "front")  # the floor and back wall are cached
+    d = {"type": "scene", **walls(1.0, lambda k: material("roughplastic" if k in glossy
+                                                          else "diffuse", 0.7))}
+    d["light"] = {"type": "rectangle", "to_world": T().translate([0, 0.99, 0])
+                  .rotate([1, 0, 0], 90).scale(0.25),
+                  "emitter": {"type": "area", "radiance": rgb(20.0)}}
+    d["sensor"] = camera([0, 0, 0.95], [0.2, -0.6, -1.0], 16)
+    scene = mi.load_dict(d)
+    integ = mi.load_dict({"type": "radiance_cache", **SMALL})
+    mi.render(scene, integrator=integ, spp=16)
+    st = integ.stats
+    assert 0.1 * st["cache_reads"] < st["solution_reads"] < st["cache_reads"], st
+    diff, allowed, means = compare_with_path(scene, block=8)
+    assert np.all(diff <= allowed), (means, allowed)
+
+
 # -- 1b. the far field is fitted for clusters no larger than alpha ----------------------------
 
 def test_cluster_budget_grows_alpha():
