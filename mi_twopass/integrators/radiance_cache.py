@@ -386,7 +386,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         after_cache = mi.Bool(False)  # the previous vertex read the cache
         past_cache = mi.Bool(False)  # an earlier vertex did, and the path went on from there
         far_reads = reads_cache and s.solution is not None
-        alpha = mi.Float(s.alpha)
+        alpha = dr.opaque(mi.Float, s.alpha)  # follows the prepass: a literal compiled per seed
         n_cache = mi.UInt32(0)
         n_solution = mi.UInt32(0)
         visits = mi.UInt32(0)
