@@ -142,8 +142,7 @@ class NearField:
         cells = self.cells
         if cells is None or float(alpha) != cells.alpha or cells.entries == 0:
             return self._traverse(x, n, B_D, alpha, active, open_factor, L_F)
-        first, count = LeafCells.lookup(x, t)
-        listed = count > 0
+        first, count, listed = LeafCells.lookup(x, t, n)
         B_list, v_list = self._walk_leaves(x, n, B_D, alpha, active & listed, L_F, first, count)
         B_root, v_root = self._traverse(x, n, B_D, alpha, active & ~listed, open_factor, L_F)
         return B_list + B_root, v_list + v_root
@@ -237,6 +236,16 @@ class NearField:
 
 #: most cells along one axis of the list grid (:class:`LeafCells`)
 CELLS_MAX_RES = 128
+#: a plane of the shading points gets lists of its own (:class:`LeafCells`) when it holds at
+#: least this many of them
+PLANE_MIN_POINTS = 8
+#: a lane reads a plane's lists when its normal is within this (per component) of the plane's
+#: and its point within ``PLANE_OFFSET_EPS`` × alpha of the plane
+PLANE_NORMAL_EPS = 1e-4
+PLANE_OFFSET_EPS = 1e-5
+#: a plane's list leaves out the triangles none of whose vertices lies more than this × alpha
+#: above the plane (coplanar with it or below it: a form factor of 0 from every point of it)
+PLANE_HEIGHT_EPS = 1e-5
 
 
 class LeafCells:
@@ -259,16 +268,30 @@ class LeafCells:
     ~10 leaves tested and ~5 counted. The (leaf, cell) pairs come from one Dr.Jit kernel over
     every leaf and every cell of the cube around its centroid, compressed, then ordered per
     cell in numpy.
+
+    **Plane lists.** Most shading points lie on a few planes (floors, walls, table tops), and
+    most of a cell's leaves are coplanar with the point or below its tangent plane: on
+    window_interior a read walked 45 leaves, 25 had their centroid within alpha and 5.5 were
+    above the tangent plane (3.6 counted). Each plane that holds at least
+    :data:`PLANE_MIN_POINTS` shading points (with ``normals``) gets, in the cells around its
+    points, a list of its own: the cell's leaves that have a vertex more than
+    :data:`PLANE_HEIGHT_EPS` × alpha above the plane. A lane whose normal and point match a
+    plane of its cell (:data:`PLANE_NORMAL_EPS`, :data:`PLANE_OFFSET_EPS`) walks that list. The
+    leaves it leaves out give a form factor of 0 from the lane's point, up to a sliver of at
+    most ~1e-4 alpha above its tangent plane.
     """
 
-    def __init__(self, lo, cell, res, first, count, leaves, alpha):
+    def __init__(self, lo, cell, res, first, count, leaves, alpha, planes=None):
         self.lo, self.cell, self.res = lo, cell, res
         self.first, self.count, self.leaves = first, count, leaves
         self.alpha = float(alpha)
+        #: :class:`PlaneLists` (None: none)
+        self.planes = planes
 
     @property
     def nbytes(self) -> int:
-        return int(4 * (self.first.size + self.count.size + self.leaves.size))
+        own = 4 * (self.first.size + self.count.size + self.leaves.size)
+        return int(own + (self.planes.nbytes if self.planes is not None else 0))
 
     @property
     def listed_cells(self) -> int:
@@ -286,10 +309,15 @@ class LeafCells:
                    np.zeros(1, dtype=np.int64), np.nan)
 
     @classmethod
-    def build(cls, near, points, alpha, cell_size=None):
+    def build(cls, near, points, alpha, cell_size=None, normals=None):
+        """The lists for the cells around ``points`` (n, 3); with their viewer-facing
+        ``normals`` (n, 3), also the plane lists (class docstring)."""
         alpha = float(alpha)
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        p = p[np.all(np.isfinite(p), axis=1)]
+        finite = np.all(np.isfinite(p), axis=1)
+        p = p[finite]
+        if normals is not None:
+            normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)[finite]
         if len(p) == 0 or near.node_count == 0 or not alpha > 0:
             return cls.empty()
         h = float(cell_size) if cell_size else 0.5 * alpha
@@ -316,29 +344,177 @@ class LeafCells:
         C = int(np.prod(res))
         count = np.bincount(cid, minlength=C).astype(np.int64)
         first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
-        return cls(lo, cell, res, first, count, leaves[rank].astype(np.int64), alpha)
+        listed = leaves[rank].astype(np.int64)
+        planes = None
+        if normals is not None:
+            planes = PlaneLists.build(near, p, normals, listed, first, count, lo, cell, res,
+                                      alpha)
+            if planes is not None:
+                listed = np.concatenate([listed, planes.leaves])
+        return cls(lo, cell, res, first, count, listed, alpha, planes)
 
     def tables(self):
         """Dr.Jit copies (grid constants opaque: a new prepass does not recompile)."""
+        planes = self.planes if self.planes is not None else PlaneLists.empty(self.count.size)
         return dict(cell_first=jit(mi.UInt32, self.first.astype(np.uint32)),
                     cell_count=jit(mi.UInt32, self.count.astype(np.uint32)),
                     cell_leaves=jit(mi.UInt32, self.leaves.astype(np.uint32)),
                     cell_lo=dr.opaque(mi.Point3f, [float(v) for v in self.lo]),
                     cell_inv=dr.opaque(mi.Vector3f, [float(1.0 / v) for v in self.cell]),
-                    cell_res=dr.opaque(mi.Vector3i, [int(v) for v in self.res]))
+                    cell_res=dr.opaque(mi.Vector3i, [int(v) for v in self.res]),
+                    **planes.tables(self.alpha))
 
     @staticmethod
-    def lookup(x, t):
-        """Dr.Jit: the (first, count) of the list of the cell of ``x``; count 0 outside the
-        grid and in unlisted cells (those lanes walk from the root)."""
+    def lookup(x, t, n=None):
+        """Dr.Jit: the (first, count) of the list of the cell of ``x``, and whether it is
+        listed (not outside the grid or in an unlisted cell: those lanes walk from the root).
+        With the lane's normal ``n``, the list of the cell's plane that ``x`` and ``n`` lie on,
+        where there is one (:class:`PlaneLists`; it may be empty: nothing above the plane)."""
         q = dr.floor((x - t["cell_lo"]) * t["cell_inv"])
         res = mi.Vector3f(t["cell_res"])
         inside = dr.all((q >= 0) & (q < res))
         qi = mi.Vector3i(dr.clip(q, 0, res - 1))
         cid = mi.UInt32((qi.x * t["cell_res"].y + qi.y) * t["cell_res"].z + qi.z)
         first = dr.gather(mi.UInt32, t["cell_first"], cid, inside)
-        count = dr.gather(mi.UInt32, t["cell_count"], cid, inside)
-        return first, dr.select(inside, count, 0)
+        count = dr.select(inside, dr.gather(mi.UInt32, t["cell_count"], cid, inside), 0)
+        listed = count > 0
+        if n is None:
+            return first, count, listed
+        first, count = PlaneLists.lookup(x, mi.Vector3f(n), cid, listed, first, count, t)
+        return first, count, listed
+
+
+class PlaneLists:
+    """The plane lists of :class:`LeafCells` (its docstring): ``normal`` (G, 3) and ``offset``
+    (G,) of each plane (n·p = offset); per cell, its entries ``cell_first``/``cell_count``
+    (C,) into ``plane``/``first``/``count`` (E,), each entry a plane and its list,
+    ``first``/``count`` into the :class:`LeafCells`' ``leaves`` (where ``leaves``, the plane
+    lists' own, are appended at ``base``)."""
+
+    def __init__(self, normal, offset, cell_first, cell_count, plane, first, count, leaves):
+        self.normal, self.offset = normal, offset
+        self.cell_first, self.cell_count = cell_first, cell_count
+        self.plane, self.first, self.count = plane, first, count
+        self.leaves = leaves
+
+    @property
+    def nbytes(self) -> int:
+        return int(16 * len(self.offset) + 4 * (2 * self.cell_first.size + 3 * self.plane.size
+                                                + self.leaves.size))
+
+    @classmethod
+    def empty(cls, cells: int):
+        z = np.zeros(1, dtype=np.int64)
+        return cls(np.zeros((1, 3)), np.zeros(1), np.zeros(cells, np.int64),
+                   np.zeros(cells, np.int64), z, z, z, np.zeros(0, np.int64))
+
+    @staticmethod
+    def planes_of(points, normals, alpha):
+        """The planes that at least :data:`PLANE_MIN_POINTS` of ``points`` lie on, with the
+        points' plane ids (−1: on none): points grouped by their normal and offset, rounded
+        to :data:`PLANE_NORMAL_EPS` and :data:`PLANE_OFFSET_EPS` × alpha → ``(normal (G, 3),
+        offset (G,), ids (n,))``."""
+        d = (points * normals).sum(axis=1)
+        key = np.column_stack([np.round(normals / PLANE_NORMAL_EPS),
+                               np.round(d / (PLANE_OFFSET_EPS * alpha))]).astype(np.int64)
+        _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        inv = inv.reshape(-1)
+        big = np.flatnonzero(cnt >= PLANE_MIN_POINTS)
+        remap = np.full(len(cnt), -1, np.int64)
+        remap[big] = np.arange(len(big))
+        ids = remap[inv]
+        G = len(big)
+        normal = np.zeros((G, 3))
+        offset = np.zeros(G)
+        on = ids >= 0
+        np.add.at(normal, ids[on], normals[on])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
+        offset = np.bincount(ids[on], weights=d[on], minlength=G) / \
+            np.maximum(np.bincount(ids[on], minlength=G), 1)
+        return normal, offset, ids
+
+    @classmethod
+    def build(cls, near, points, normals, listed, first, count, lo, cell, res, alpha):
+        """Each plane's lists in the cells around its points (the 3×3×3 cells about each, as
+        the cells' own lists): the cell's leaves with a vertex more than
+        :data:`PLANE_HEIGHT_EPS` × alpha above the plane. None where no plane has enough
+        points."""
+        normal, offset, ids = cls.planes_of(points, normals, alpha)
+        if len(offset) == 0:
+            return None
+        on = ids >= 0
+        ijk = np.minimum(np.floor((points[on] - lo) / cell), res - 1).astype(np.int64)
+        off = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"),
+                       -1).reshape(-1, 3)
+        q = (ijk[:, None, :] + off[None]).reshape(-1, 3)
+        g = np.repeat(ids[on], len(off))
+        ok = np.all((q >= 0) & (q < res), axis=1)
+        cid = (q[ok, 0] * res[1] + q[ok, 1]) * res[2] + q[ok, 2]
+        G = len(offset)
+        key = np.unique(cid * G + g[ok])  # (cell, plane), by cell
+        pairs = np.column_stack([key // G, key % G])
+        pairs = pairs[count[pairs[:, 0]] > 0]
+        if len(pairs) == 0:
+            return None
+        n_c = count[pairs[:, 0]]
+        entry = np.repeat(np.arange(len(pairs)), n_c)
+        idx = _ranges(first[pairs[:, 0]], first[pairs[:, 0]] + n_c)
+        # the planes share few normals (a floor and a table top): each triangle's highest
+        # vertex along each distinct normal, once, then one lookup per entry
+        normals_u, k_of = np.unique(np.round(normal / PLANE_NORMAL_EPS).astype(np.int64),
+                                    axis=0, return_inverse=True)
+        k_of = k_of.reshape(-1)
+        unit = np.zeros((len(normals_u), 3))
+        np.add.at(unit, k_of, normal)
+        unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+        top = np.einsum("tvj,kj->tkv", near.verts, unit).max(axis=2)  # (T, K)
+        pl = pairs[entry, 1]
+        h = top[near.tri[listed[idx]], k_of[pl]] - offset[pl]
+        keep = h > PLANE_HEIGHT_EPS * alpha
+        kept_count = np.bincount(entry[keep], minlength=len(pairs)).astype(np.int64)
+        base = len(listed)
+        kept_first = base + np.concatenate([[0], np.cumsum(kept_count)[:-1]]).astype(np.int64)
+        C = count.size
+        cell_count = np.bincount(pairs[:, 0], minlength=C).astype(np.int64)
+        cell_first = np.concatenate([[0], np.cumsum(cell_count)[:-1]]).astype(np.int64)
+        return cls(normal, offset, cell_first, cell_count, pairs[:, 1].astype(np.int64),
+                   kept_first, kept_count, listed[idx[keep]])
+
+    def tables(self, alpha: float):
+        """Dr.Jit copies (the offset tolerance opaque: a new prepass does not recompile)."""
+        cf, cc = self.cell_first, self.cell_count
+        f32 = lambda a: jit(mi.Float, np.ascontiguousarray(a, dtype=np.float32).ravel())  # noqa
+        u32 = lambda a: jit(mi.UInt32, np.asarray(a).astype(np.uint32))  # noqa: E731
+        return dict(plane_cell_first=u32(cf), plane_cell_count=u32(cc),
+                    plane_id=u32(self.plane), plane_first=u32(self.first),
+                    plane_count=u32(self.count), plane_normal=f32(self.normal),
+                    plane_offset=f32(self.offset),
+                    plane_eps=dr.opaque(mi.Float, PLANE_OFFSET_EPS * float(alpha)))
+
+    @staticmethod
+    def lookup(x, n, cid, inside, first, count, t):
+        """Dr.Jit: the (first, count) of the list of the plane of cell ``cid`` that ``x`` and
+        ``n`` lie on, else the cell's own ``first``/``count``."""
+        j = dr.gather(mi.UInt32, t["plane_cell_first"], cid, inside)
+        end = j + dr.select(inside, dr.gather(mi.UInt32, t["plane_cell_count"], cid, inside), 0)
+
+        def cond(j, end, first, count):
+            return j < end
+
+        def body(j, end, first, count):
+            active = j < end
+            g = dr.gather(mi.UInt32, t["plane_id"], j, active)
+            pn = dr.gather(mi.Vector3f, t["plane_normal"], g, active)
+            pd = dr.gather(mi.Float, t["plane_offset"], g, active)
+            match = active & (dr.max(dr.abs(n - pn)) <= PLANE_NORMAL_EPS) \
+                & (dr.abs(dr.dot(pn, x) - pd) <= t["plane_eps"])
+            first = dr.select(match, dr.gather(mi.UInt32, t["plane_first"], j, match), first)
+            count = dr.select(match, dr.gather(mi.UInt32, t["plane_count"], j, match), count)
+            return dr.select(match, end, j + 1), end, first, count
+
+        _, _, first, count = dr.while_loop((j, end, first, count), cond, body,
+                                           label="near_field_plane")
+        return first, count
 
 
 def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
@@ -410,7 +586,7 @@ def _far(B_D, L_F, d):
 
 
 def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
-                     cell_size=None) -> NearField:
+                     cell_size=None, normals=None) -> NearField:
     """Median-split BVH (longest centroid axis) over triangles ``verts`` (T, 3, 3) with one-sided
     unit normals (T, 3) and radiosities ``tri_B`` (T, 3); zero-area triangles are dropped.
 
@@ -423,7 +599,8 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     upper bounds, exact at the leaves, so the walk's culling stays conservative.
 
     With shading ``points`` (n, 3) and ``alpha``, also the per-cell leaf lists of the cache reads
-    (:class:`LeafCells`, cells of ``cell_size``, default ``alpha``/2)."""
+    (:class:`LeafCells`, cells of ``cell_size``, default ``alpha``/2); with the points'
+    viewer-facing ``normals`` (n, 3), also the lists of their planes."""
     verts = np.asarray(verts, dtype=np.float64).reshape(-1, 3, 3)
     tri_normal = np.asarray(tri_normal, dtype=np.float64).reshape(-1, 3)
     tri_B = np.asarray(tri_B, dtype=np.float64).reshape(-1, 3)
@@ -502,7 +679,8 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     near = NearField(center, radius, area, B, normal, skip, tri, verts, tri_normal, tri_B,
                      ccenter, cradius, half)
     if points is not None:
-        near.cells = LeafCells.build(near, points, alpha, cell_size=cell_size)
+        near.cells = LeafCells.build(near, points, alpha, cell_size=cell_size,
+                                     normals=normals)
     near._tables  # Dr.Jit copies now, never first inside a symbolic loop
     return near
 

@@ -852,7 +852,8 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
     seen = ~buried_triangles(scene, verts, tri_n)  # inside a solid: never visible (§5)
     near = build_near_field(verts[seen], tri_n[seen], tri_B[seen],
                             points=None if points is None else points[0], alpha=alpha,
-                            cell_size=settings.near_cell_rel * alpha)
+                            cell_size=settings.near_cell_rel * alpha,
+                            normals=None if points is None else points[1])
     return CachePrepass(scale=scale, lambertian=lambertian, alpha=alpha, patches=patches,
                         elements=elements, solution=solution, cache=cache, near=near,
                         split_complete=split_complete, cached=cached)
