@@ -75,7 +75,10 @@ GRID_MAX_RES = 64
 #: cluster-grid cell size over the median RBF support radius: a lane's cell lists the clusters
 #: whose support touches the cell, about (1 + 0.87 × this)² × those that hold the point.
 #: 0.5 until session 20: a read looped over 13.6 listed clusters for 8.4 used (window_interior
-#: at 256²); with 0.25 the render took 0.285 -> 0.270 s (256², 16 spp), the grid 0.25 -> 1.5 MB
+#: at 256²). With 0.25 the render at 64 spp took 1.047/1.051 -> 1.014/0.999 s (two alternating
+#: runs of ``tools/render_cost.py scenes_xml/window_interior.xml radiance_cache --res 256 --spp
+#: 64 --repeats 4``); the grid's build costs 20–30 ms more (545 clusters: 11 -> 40 ms on a
+#: synthetic layout), its memory 0.25 -> 1.5 MB: a net gain from about 32 spp at 256²
 GRID_CELL_REL = 0.25
 
 
