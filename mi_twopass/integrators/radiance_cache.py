@@ -72,8 +72,9 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     the surface's reflected radiosity B_r/π from the coarse solution and ends there (GSII's far
     gather, as in ``radiosity_gather``); until session 20 such paths ran on to Russian
     roulette (window_interior at 256², 16 spp: render 0.396 → 0.350 s, the indirect light's
-    relvar at 128 px 0.0168 → 0.0098, ``tools/variance_parts.py``). This is how light that reaches x through specular chains (L S+ D: a lamp behind a
-    window pane, caustics of glass and metal, the glossy floor's reflection) is counted, once:
+    relvar at 128 px 0.0168 → 0.0098, ``tools/variance_parts.py``). This is how light that
+    reaches x through specular chains (L S+ D: a lamp behind a window pane, caustics of glass
+    and metal, the glossy floor's reflection) is counted, once:
     the radiosity solution holds such light only after a diffuse bounce at another surface
     (its particles follow every BSDF), which B_r of that surface carries to x as ordinary
     indirect light. The back of a one-sided diffuse surface is black, as its BSDF is.

@@ -387,9 +387,9 @@ class LeafCells:
 class PlaneLists:
     """The plane lists of :class:`LeafCells` (its docstring): ``normal`` (G, 3) and ``offset``
     (G,) of each plane (n·p = offset); per cell, its entries ``cell_first``/``cell_count``
-    (C,) into ``plane``/``first``/``count`` (E,), each entry a plane and its list,
-    ``first``/``count`` into the :class:`LeafCells`' ``leaves`` (where ``leaves``, the plane
-    lists' own, are appended at ``base``)."""
+    (C,) into ``plane``/``first``/``count`` (E,), each entry a plane and its list;
+    ``first``/``count`` index the :class:`LeafCells`' ``leaves``, after whose own lists these
+    lists' ``leaves`` are appended."""
 
     def __init__(self, normal, offset, cell_first, cell_count, plane, first, count, leaves):
         self.normal, self.offset = normal, offset
