@@ -315,6 +315,42 @@ def test_cluster_grid_lists_every_cluster_whose_support_holds_the_point():
         assert set(np.nonzero(inside[i])[0]) <= set(ids.tolist())
 
 
+def _box_pairs(grid, center, support):
+    """Every (cell id, cluster) pair of the cells in each support's bounding box whose box the
+    support sphere touches: the reference the column-wise ClusterGrid build must match."""
+    out = set()
+    for k, (c, r) in enumerate(zip(center, support)):
+        a = np.clip(np.floor((c - r - grid.lo) / grid.cell), 0, grid.res - 1).astype(int)
+        b = np.clip(np.floor((c + r - grid.lo) / grid.cell), 0, grid.res - 1).astype(int)
+        idx = np.stack(np.meshgrid(*[np.arange(a[d], b[d] + 1) for d in range(3)],
+                                   indexing="ij"), -1).reshape(-1, 3)
+        lo = grid.lo + idx * grid.cell
+        near = np.clip(c, lo, lo + grid.cell)
+        hit = idx[((near - c) ** 2).sum(axis=1) <= r * r]
+        out |= {(int((i * grid.res[1] + j) * grid.res[2] + z), k) for i, j, z in hit}
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_cluster_grid_pairs_are_those_of_every_cell_of_the_box(seed):
+    """ClusterGrid lists, per (cluster, x, y) column, the run of z cells its support sphere
+    meets: the same (cell, cluster) pairs as testing every cell of the sphere's bounding box
+    (random centres and radii); with spheres that touch cell faces exactly, a superset."""
+    rng = np.random.default_rng(seed)
+    K = 120
+    center = rng.random((K, 3)) * [4.0, 1.0, 2.0]
+    support = rng.uniform(0.05, 0.6, K)
+    aligned = seed == 2
+    if aligned:
+        center, support = np.round(center * 4) / 4, np.full(K, 0.25)
+    grid = ClusterGrid(center, support)
+    got = {(int(c), int(k)) for c in range(len(grid.cell_start) - 1)
+           for k in grid.cell_ids[grid.cell_start[c]:grid.cell_start[c + 1]]}
+    want = _box_pairs(grid, center, support)
+    assert want <= got and (aligned or got == want)
+    assert len(got) > K
+
+
 def test_grid_interpolation_matches_brute_force():
     """RadianceCache.coefficients (grid walk, float32) equals the brute-force RBF sum over all
     clusters (float64), nearest-cluster fallback included (points far from every cluster)."""
