@@ -114,9 +114,11 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     R_t is the *reflected* radiosity of the triangle's receiver and F the point-to-triangle form
     factor: exact (Lambert's formula, finite at corners) for BVH leaves, one disk per BVH node
     farther than 4 × its bounding radius (§7). The far field holds indirect light only (gather
-    rays read B_r/π; rays that hit within α are left out of the fit), so direct light is counted
-    once, by emitter sampling. ``alpha → 0`` removes B_C; ``alpha`` larger than the scene gives
-    B_D ≈ 0 and a visibility-free one-bounce gather from the radiosity solution.
+    rays read B_r/π, near hits included: B_C cancels the fit's value in the directions of a
+    point's near triangles), so direct light is counted
+    once, by emitter sampling. ``alpha → 0`` removes B_C; with ``alpha`` larger than a closed
+    scene the near triangles cover every direction, and B_D + B_C is a visibility-free
+    one-bounce gather from the radiosity solution.
 
     The near-field triangles are the cached patches' triangles, with the cached elements' of cut
     or unevenly lit patches (:class:`~mi_twopass.prepass.sh_cache.CachedReceivers`), split

@@ -20,9 +20,16 @@ Steps (:func:`build_radiance_cache`):
    Mitsuba's emitter sampling at render time), and only where the surface hit is *cached*
    (:class:`CachedReceivers`: purely diffuse, its element not cut by geometry). A ray that meets
    glass, metal, a glossy or mixed surface reads 0: the render traces that light (L S+ D
-   included) and must not find it in the fit as well. Rays that hit geometry closer than
-   ``alpha`` are dropped from the fit: that light is the near field, counted by B_C. A miss
-   reads 0 (an environment emitter is direct light).
+   included) and must not find it in the fit as well. Every ray is fitted, those that hit
+   geometry closer than ``alpha`` too, as in the paper (whose clusters are the points within
+   alpha and whose rays read the photon map wherever they hit): B_C subtracts π L_F(D_t)
+   where a *reading* point has its near triangles, so the fit's value there cancels whatever
+   it is, while the cluster's other points, farther from that geometry, read the same
+   directions as far field. Until session 21 those hits were dropped; the fit then had holes
+   exactly there, which the order-2 SH filled by extrapolation: the bias part of
+   ``tools/bias_map.py SCENE radiance_cache --res 256 --spp 256 --ref-spp 2048`` went
+   2.31e-3 → 1.71e-3 on window_interior and 2.08e-3 → 1.82e-3 on the office when they were
+   fitted. A miss reads 0 (an environment emitter is direct light).
 4. **Fit**: :func:`~mi_twopass.sh.project_least_squares` (Tikhonov-regularised, so one sample or
    a few directions give a smooth, finite fit) → 9 coefficients × RGB per cluster.
 
@@ -625,14 +632,14 @@ class RadianceCache:
         return hit
 
 
-def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=128, seed=0,
+def gather_far_field(scene, solution, p, n, clusters, rays_per_cluster=128, seed=0,
                      reg=sh.DEFAULT_REG, cached=None):
     """Eq. 4: per cluster of ``clusters`` (:class:`Clusters`), ``rays_per_cluster`` gather
     rays from random shading points of the cluster (uniform hemisphere) read B_r/π of the
     receiver hit where it is cached (``cached``, a :class:`CachedReceivers`; default: the
-    solution's receivers, no bright reflector left out), 0 elsewhere;
-    hits closer than ``alpha`` are left out (near field). Ray origins are offset relative to
-    the scene's size. → ``(coeffs (K, 9, 3), rays traced)``."""
+    solution's receivers, no bright reflector left out), 0 elsewhere, near hits included
+    (module docstring, step 3). Ray origins are offset relative to the scene's size.
+    → ``(coeffs (K, 9, 3), rays traced)``."""
     K = len(clusters)
     coeffs = np.zeros((K, sh.SH_COUNT, 3))
     if K == 0 or rays_per_cluster < 1:
@@ -666,16 +673,12 @@ def gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster=12
     valid = cached.at(si, si.is_valid())
     L = solution.reflected_radiance(si, valid)
     L = dr.select(valid, L, 0.0)
-    dist = dr.select(si.is_valid(), si.t, np.inf)
-    dr.eval(dist, L)
-    dist = np.asarray(dist)
     # columns: np.asarray of a Color3f interleaves it in a kernel with its width as a literal,
     # and the width (clusters x rays) follows the seed: a kernel compiled for every render
     L = columns(L)
-    far = ~np.isfinite(dist) | (dist >= alpha)
     L = np.where(np.isfinite(L), L, 0.0)
     # one regularised least-squares fit per cluster, solved as a batch (eq. 4)
-    coeffs = sh.project_least_squares_groups(d[far], L[far], owner[far], K, reg=reg)
+    coeffs = sh.project_least_squares_groups(d, L, owner, K, reg=reg)
     return coeffs, len(src)
 
 
@@ -697,8 +700,8 @@ def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
     p, n, shading_rays = shading_points
     alpha, clusters = fit_clusters(p, alpha, max_clusters, seed)
     center, radius = clusters.center.reshape(-1, 3), clusters.radius.reshape(-1)
-    coeffs, rays = gather_far_field(scene, solution, p, n, clusters, alpha, rays_per_cluster,
-                                    seed, cached=cached)
+    coeffs, rays = gather_far_field(scene, solution, p, n, clusters, rays_per_cluster, seed,
+                                    cached=cached)
     cache = RadianceCache(center, radius, coeffs, float(alpha), amb, p, rays, shading_rays)
     cache._tables  # Dr.Jit copies now, never first inside a symbolic loop
     return cache
@@ -866,7 +869,8 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
                                  ambient=settings.ambient if settings.fake_gi else 0.0,
                                  fake_gi=settings.fake_gi or sensor is None, cached=cached)
     # alpha grows where max_clusters cannot cover the points with clusters that small
-    # (fit_clusters): the near field must reach as far as the far field leaves out
+    # (fit_clusters): a cluster's far field stands for its points only where the near field
+    # reaches across the cluster
     alpha = cache.alpha
     # §5: triangles near the camera's shading points split lazily until smaller than alpha
     shading = np.zeros((0, 3)) if points is None else points[0]

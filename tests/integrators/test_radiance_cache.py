@@ -19,6 +19,7 @@ import pytest
 
 import mi_twopass  # noqa: F401
 import mi_twopass.integrators.radiance_cache  # noqa: F401  (registers the plugin)
+from mi_twopass import sh
 from mi_twopass.integrators.radiance_cache import BIAS_BOUND
 from mi_twopass.prepass.sh_cache import (ClusterGrid, RadianceCache,
                                                cluster_labels, cluster_points, default_alpha)
@@ -200,6 +201,45 @@ def cornell():
 def test_hard_cases_are_finite(cornell, props):
     img, integ = render(cornell, spp=2, **props)
     assert np.all(np.isfinite(img)) and img.mean() > 0
+
+
+def test_far_field_fits_the_near_hits_too():
+    """§4.1, eq. 4: a cluster's gather rays are fitted wherever they hit, geometry nearer than
+    alpha included (B_C cancels the fit in the directions of a reading point's own near
+    triangles; the cluster's points farther away read those directions as far field). Floor
+    points next to a lit wall 2 high, nothing else but the sky-less void, alpha 3: every ray
+    that hits lands nearer than alpha. The fit reads the wall's reflected radiance toward it and
+    less than half that straight up, where every ray misses. With the near hits dropped (until
+    session 21) the fit held misses only and read 0 everywhere."""
+    scene = mi.load_dict({
+        "type": "scene",
+        "floor": wall(T().translate([0, -1, 0]).rotate([1, 0, 0], -90).scale(2.0), 0.7),
+        "wall": wall(T().translate([0.2, 0, 0]).rotate([0, 1, 0], -90), 0.7),
+        "light": light(y=0.9, scale=0.3, radiance=20.0),
+        "sensor": camera([-0.2, 0.5, 0.0], [-0.1, -1, 0], 16, fov=30)})
+    integ = mi.load_dict({"type": "radiance_cache", "alpha": 3.0, "max_clusters": 4,
+                          "rays_per_cluster": 512})
+    mi.render(scene, integrator=integ, spp=1)
+    s = integ.structure
+    cache = s.cache
+    assert cache.count >= 1
+    x = cache.center
+    # every point of the wall lies within alpha of every cluster: all hits are near hits
+    assert cache.alpha == 3.0 and np.all(np.hypot(0.2 - x[:, 0], 2.0) < cache.alpha)
+    toward = np.array([1.0, 0.3, 0.0]) / np.linalg.norm([1.0, 0.3, 0.0])
+    coeffs = cache.coefficients_numpy(x)
+    L_wall = np.array([sh.evaluate(c, toward) for c in coeffs]).mean(axis=-1)
+    L_up = np.array([sh.evaluate(c, [0.0, 1.0, 0.0]) for c in coeffs]).mean(axis=-1)
+    # the wall's B_r/π where those rays land
+    d = np.broadcast_to(toward, x.shape)
+    hit = scene.ray_intersect(mi.Ray3f(mi.Point3f(x[:, 0], x[:, 1] + 1e-3, x[:, 2]),
+                                       mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])))
+    B = np.asarray(s.solution.reflected_radiance(hit, hit.is_valid())).mean(axis=0)
+    assert np.all(B > 0)
+    # order 2 smooths the wall's quarter-sphere into its neighbours: within a factor of two
+    np.testing.assert_array_less(0.5 * B, L_wall)
+    np.testing.assert_array_less(L_wall, 2.0 * B)
+    assert np.all(np.abs(L_up) < 0.5 * L_wall)
 
 
 def test_cluster_of_one_and_coplanar_points():
