@@ -786,6 +786,9 @@ class CachePrepass:
         self.spike = spike
         #: the surfaces the cache holds (:class:`CachedReceivers`), None where nothing is built
         self.cached = cached
+        #: the cache's irradiance at the camera's pixel centres
+        #: (:class:`~mi_twopass.prepass.pixel_table.PixelTable`), None where there is none
+        self.pixels = None
 
     @property
     def grid(self):
@@ -798,7 +801,8 @@ class CachePrepass:
         if self.cache is None:
             return lists
         sol = int(self.solution.nbytes) if self.solution is not None else 0
-        return int(self.cache.nbytes + self.near.nbytes) + sol + lists
+        table = int(self.pixels.nbytes) if self.pixels is not None else 0
+        return int(self.cache.nbytes + self.near.nbytes) + sol + lists + table
 
 
 def cache_alpha(scene, settings: CacheSettings, points=None) -> float:
