@@ -1,6 +1,9 @@
 """The radiance cache's irradiance at the pixel centres (:mod:`mi_twopass.prepass.pixel_table`):
 what a camera ray's first hit reads from it against E evaluated at the hit itself, on a plane
 and next to creases, and the renders with and without it."""
+import os
+import sys
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -10,16 +13,12 @@ import mi_twopass  # noqa: F401
 import mi_twopass.integrators.radiance_cache  # noqa: F401  (registers the plugin)
 from mi_twopass.prepass.pixel_table import REACH_ALPHA, PixelTable
 
-T = mi.ScalarTransform4f
-
-
-def rgb(v):
-    return {"type": "rgb", "value": [v, v, v]}
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from hard_scenes import T, diffuse, rgb  # noqa: E402
 
 
 def wall(tf, albedo):
-    return {"type": "rectangle", "to_world": tf,
-            "bsdf": {"type": "diffuse", "reflectance": rgb(albedo)}}
+    return {"type": "rectangle", "to_world": tf, "bsdf": diffuse(albedo)}
 
 
 def room(camera, res=64):
@@ -34,7 +33,7 @@ def room(camera, res=64):
         "right": wall(T().translate([1, 0, 0]).rotate([0, 1, 0], -90), 0.05),
         "front": wall(T().translate([0, 0, 1]).rotate([0, 1, 0], 180), 0.7),
         "box": {"type": "cube", "to_world": T().translate([0.3, -0.8, -0.3]).scale(0.2),
-                "bsdf": {"type": "diffuse", "reflectance": rgb(0.5)}},
+                "bsdf": diffuse(0.5)},
         "light": {"type": "rectangle", "to_world": T().translate([0, 0.99, 0])
                   .rotate([1, 0, 0], 90).scale(0.3),
                   "emitter": {"type": "area", "radiance": rgb(15.0)}},
