@@ -142,9 +142,10 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     reads E = max(B_D + λ B_C, 0) interpolated from the pixel centres around its film position
     (:class:`~mi_twopass.prepass.pixel_table.PixelTable`, built at the end of the prepass:
     E at each pixel centre's first hit), over the centres that lie on its surface within
-    alpha/4 of it; elsewhere, and behind specular vertices, E is evaluated per sample. At 16 spp
-    that is 1 evaluation per pixel, not 16 (window_interior at 256²: 99 % of the reads, render
-    0.40–0.46 → 0.27–0.32 s, ``tools/render_cost.py``). ρ is read per sample.
+    alpha/4 of it; elsewhere (beside creases and contacts, behind specular vertices) E is
+    evaluated per sample. At 16 spp that is about 1 evaluation per pixel, not 16
+    (window_interior at 256²: 96.6 % of the reads, render 0.41–0.51 → 0.27–0.36 s,
+    ``tools/render_cost.py``). ρ is read per sample.
 
     Simplifications: ρ/π is the BSDF's value toward the normal at the cache vertex (textures
     included); B_D uses the geometric normal (a shading normal that differs is ignored);
