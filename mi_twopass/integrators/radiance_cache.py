@@ -144,7 +144,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     E at each pixel centre's first hit), over the centres that lie on its surface within
     alpha/4 of it; elsewhere (beside creases and contacts, behind specular vertices) E is
     evaluated per sample. At 16 spp that is about 1 evaluation per pixel, not 16
-    (window_interior at 256²: 96.6 % of the reads, render 0.41–0.51 → 0.27–0.36 s,
+    (window_interior at 256², 16 spp: 96.6 % of the reads, render 0.40 → 0.29 s,
     ``tools/render_cost.py``). ρ is read per sample.
 
     Simplifications: ρ/π is the BSDF's value toward the normal at the cache vertex (textures

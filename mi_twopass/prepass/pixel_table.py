@@ -38,7 +38,8 @@ REACH_ALPHA = 0.25
 #: a point is served where the centres on its surface hold at least this share of its bilinear
 #: weight (their values renormalised): at a silhouette or a crease, the centres on the point's
 #: own side, at most one pixel spacing away. Requiring all four served 79 % of the camera's
-#: cache reads on window_interior at 256² (render at 16 spp 0.40 s), this 96.6 % (0.27–0.36 s);
+#: cache reads on window_interior at 256², this 96.6 %; the render at 16 spp, 0.396–0.402 s
+#: without the table, took 0.337 and 0.288 s (``tools/render_cost.py``, one sitting);
 #: the lanes left evaluate E (a packet of lanes runs that evaluation if any one needs it)
 MIN_WEIGHT = 0.25
 
