@@ -11,6 +11,7 @@ import mitsuba as mi
 from ..prepass.sh_cache import ALPHA_REL, BRIGHT_CONTRAST, CacheSettings
 from ..prepass.pixel_table import PixelTable
 from ..prepass.sh_cache import build as build_cache
+from ..prepass.sh_cache import refined_count
 from ..prepass.spike_grid import SpikeSettings
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
                    read_radiosity_budget)
@@ -61,7 +62,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     transmission or null lobe: not ``plastic``, ``blendbsdf``, ``roughconductor``,
     ``thindielectric``, ``mask``) and its receiver of the radiosity solution (the receiving
     element, with elements) on the side hit is diffuse, not cut by geometry, not unevenly lit
-    and not a bright reflector (:class:`~mi_twopass.prepass.sh_cache.CachedReceivers`). The
+    (unless flat, exposed and so refined into cells read at the point hit:
+    :mod:`~mi_twopass.prepass.element_grid`) and not a bright reflector (:class:`~mi_twopass.prepass.sh_cache.CachedReceivers`). The
     SH gather rays
     read B_r/π only on cached surfaces (0 elsewhere), the near-field triangles of other
     surfaces have R_t = 0, so ρ/π (B_D + λ B_C) estimates the light that reaches x *from cached
@@ -263,7 +265,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     ``NRT`` (rays traced for GI: the SH gather rays plus the radiosity particles' rays),
     ``NFGS`` (number of SH samples = clusters), ``CS`` (cache bytes: SH field + BVH + start
     lists), ``bvh_visits`` (BVH nodes visited), ``near_triangles`` (after the lazy split),
-    ``split_complete``.
+    ``split_complete``, ``refined_elements`` (unevenly lit elements read cell by cell:
+    :mod:`~mi_twopass.prepass.element_grid`).
     FGO (time over a direct-only render) needs a second render:
     :func:`mi_twopass.evaluation.table1.fgo`
     (``tools/radiance_cache_table.py`` prints the Table 1 columns).
@@ -363,7 +366,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 "patches": int(s.patches.count), "bvh_nodes": near.node_count,
                 "near_triangles": int(len(near.verts)), "split_complete": s.split_complete,
                 "CS": cs, "cache_bytes": s.nbytes, "alpha": s.alpha,
-                "pixel_table": s.pixels.count if s.pixels is not None else 0}
+                "pixel_table": s.pixels.count if s.pixels is not None else 0,
+                "refined_elements": refined_count(s.solution)}
 
     def _finish_stats(self, sensor, spp, prepass_seconds, render_seconds):
         super()._finish_stats(sensor, spp, prepass_seconds, render_seconds)
@@ -447,7 +451,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 # iterations against 1.9)
                 if far_reads:
                     far = cached_hit & past_cache & (si.t >= alpha)
-                    L += beta * s.solution.receiver_reflected_radiance(receiver, far)
+                    L += beta * s.solution.receiver_reflected_radiance(receiver, far, si.p)
                     in_cache |= far
                     n_solution += dr.select(far, 1, 0)
             active_next = active & si.is_valid() & ~in_cache & (depth + 1 < max_depth)

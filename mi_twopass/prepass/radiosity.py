@@ -70,6 +70,7 @@ from ..scene.patches import Patches, build_patches, scene_shapes
 from ..scenefile import load_scene
 from ..seeds import splitmix64
 from . import emission_guide
+from .element_grid import ElementFrames, ElementGrid, cell_areas, refinable
 
 #: default cap on surface interactions per particle (see the module docstring for its bias)
 DEFAULT_MAX_BOUNCES = 1024
@@ -103,6 +104,8 @@ class RadiositySolution:
     elements: Patches | None = None  # finer receiving mesh (Cohen et al. 1986), or None
     E_elements: np.ndarray | None = None  # (M, 3) irradiance of the elements
     B_reflected_elements: np.ndarray | None = None  # (M, 3) ρ_e·E_e
+    #: the unevenly lit flat elements refined into cells (:mod:`.element_grid`), or None
+    grid: ElementGrid | None = None
     _L_reflected: object = field(default=None, repr=False)
     _L_total: object = field(default=None, repr=False)
     _L_elements: object = field(default=None, repr=False)
@@ -143,8 +146,9 @@ class RadiositySolution:
         """B_reflected/π at ``si`` (``mi.Color3f``), 0 where there is no patch.
 
         With ``elements`` the value of the element hit (the finer receiving mesh: the far gather
-        reads it, see :func:`solve_radiosity`), else the patch's."""
-        return self.receiver_reflected_radiance(self.receiver_at(si, active), active)
+        reads it, see :func:`solve_radiosity`; its cell's on a refined element, :attr:`grid`),
+        else the patch's."""
+        return self.receiver_reflected_radiance(self.receiver_at(si, active), active, si.p)
 
     # the receiver hit, looked up once per vertex: cached_at and reflected_radiance read it
     def receiver_at(self, si, active=True):
@@ -160,10 +164,15 @@ class RadiositySolution:
         receivers = self.elements if self.elements is not None else self.patches
         return receivers.gather("is_diffuse", rid, active)
 
-    def receiver_reflected_radiance(self, rid, active=True):
-        """:meth:`reflected_radiance` of the receiver ``rid`` (:meth:`receiver_at`)."""
+    def receiver_reflected_radiance(self, rid, active=True, p=None):
+        """:meth:`reflected_radiance` of the receiver ``rid`` (:meth:`receiver_at`): with
+        ``p``, the point hit, the value of its cell on an element refined into a grid
+        (:attr:`grid`, the unevenly lit flat elements), else the element's mean."""
         if self.elements is not None:
-            return dr.gather(mi.Color3f, self._L_elements, rid, active)
+            mean = dr.gather(mi.Color3f, self._L_elements, rid, active)
+            if p is None or self.grid is None or not self.grid.count:
+                return mean
+            return self.grid.reflected_radiance(rid, p, mean, active)
         return self.patch_reflected_radiance(rid, active)
 
     def radiosity(self, si, active=True):
@@ -178,6 +187,8 @@ class RadiositySolution:
         if self.elements is not None:
             total += self.E_elements.nbytes + self.B_reflected_elements.nbytes \
                 + 12 * (self.elements.count + 1) + self.elements.nbytes
+        if self.grid is not None:
+            total += self.grid.nbytes
         return int(total)
 
 
@@ -205,7 +216,8 @@ def _sample_emission(scene, bounds, rng, active, guide=None):
 
 
 def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, elements=None,
-                 guide=None, importance=None, bounds=None, deposit_flux=True, reads=None):
+                 guide=None, importance=None, bounds=None, deposit_flux=True, reads=None,
+                 frames=None):
     """Trace ``n`` particles; returns (deposits (N+1, 3) float64, element deposits (M+1, 3)
     or None, accounting dict, rays). ``guide``: where particles start
     (:mod:`mi_twopass.prepass.emission_guide`), else as Mitsuba samples emitter rays.
@@ -217,7 +229,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     ``bounds``: :func:`mi_twopass.scene.bounds.scene_bounds` of ``scene`` (computed when
     ``None``). ``deposit_flux=False`` (the emission guide's pilot, which reads only ``cell`` and
     ``score``): nothing is deposited, and the deposits, the element deposits and the receivers'
-    moments come back as ``None``."""
+    moments come back as ``None``. ``frames`` (with ``elements``): their
+    :class:`~.element_grid.ElementFrames`; each element deposit lands in its cell too, and
+    the accounting holds ``cell_flux`` (M, K²), the channel mean of the flux."""
     N = patches.count
     M = elements.count if elements is not None else 0
     # seed, offset and scale are opaque: as literals they would make every seed (every fresh
@@ -252,6 +266,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     if not (peak > 0 and math.isfinite(peak)):
         R = (elements if elements is not None else patches).count
         result.update(moments=np.zeros((R, 3)), normal_moments=np.zeros((R, 3)),
+                      cell_flux=np.zeros((M, frames.res ** 2)) if frames is not None and M
+                      else None,
                       deposit_count=np.zeros(R, np.int64), deposit_w2=np.zeros(R),
                       cell=np.asarray(cell, np.int64), score=np.zeros(n))
         return deposits, (np.zeros((M + 1, 3)) if elements is not None else None), result, 0
@@ -273,6 +289,9 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
         target_nrm = dr.zeros(mi.Int64, 3 * (R + 1))
         target_n = dr.zeros(mi.UInt32, R + 1)
         target_w2 = dr.zeros(mi.Int64, R + 1)
+    K2 = frames.res ** 2 if (frames is not None and elements is not None and deposit_flux) else 0
+    if K2:
+        target_c = dr.zeros(mi.Int64, M * K2 + 1)
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
 
     active = dr.max(flux) > 0
@@ -308,6 +327,13 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
             offset = (si.p - recv.gather("center", rid, at_recv)) \
                 * dr.gather(mi.Float, recv_inv_r, rid, at_recv)
             deposit(target_m, rid, offset * flux_mean, at_recv)
+            if K2:
+                # one channel: a cell takes its element's colour (ElementGrid)
+                q = dr.clip(dr.round(mi.Float64(flux_mean) * inv_quantum), -_FIXED_CLAMP,
+                            _FIXED_CLAMP)
+                dr.scatter_reduce(dr.ReduceOp.Add, target_c, mi.Int64(q),
+                                  rid * K2 + frames.cell_of_offset(rid, offset, at_recv),
+                                  at_recv, mode=_DEPOSIT_MODE)
             # the normal of the receiver's side (the side the particle arrives on)
             side_n = dr.select(dr.dot(ray.d, si.n) < 0, si.n, -si.n)
             deposit(target_nrm, rid, side_n * flux_mean, at_recv)
@@ -399,6 +425,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     result["normal_moments"] = np.array(target_nrm, dtype=np.int64).reshape(R + 1, 3)[:R] \
         * quantum
     result["deposit_count"] = np.array(target_n, dtype=np.int64)[:R]
+    result["cell_flux"] = np.array(target_c, dtype=np.int64)[:M * K2].reshape(M, K2) \
+        * quantum if K2 else None
     result["deposit_w2"] = np.array(target_w2, dtype=np.int64)[:R].astype(np.float64) \
         * quantum_w2
     return deposits, deposits_e, result, rays
@@ -561,6 +589,8 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
     normal_moments = np.zeros((recv.count, 3))
     deposit_count = np.zeros(recv.count, np.int64)
     deposit_w2 = np.zeros(recv.count)
+    frames = ElementFrames(elements) if elements is not None else None
+    cell_flux = np.zeros((elements.count, frames.res ** 2)) if elements is not None else None
     rays = 0
     traced = 0
     if len(scene.emitters()) > 0 and N >= 0:
@@ -572,7 +602,7 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
                 try:
                     deposits, deposits_e, result, batch_rays = _trace_batch(
                         scene, patches, n, first, seed, n_particles, max_bounces, elements,
-                        guide, bounds=bounds)
+                        guide, bounds=bounds, frames=frames)
                 except (RuntimeError, NotImplementedError) as exc:
                     names = ", ".join(sorted({e.class_name() for e in scene.emitters()}))
                     raise RuntimeError(
@@ -588,21 +618,30 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
                 normal_moments += result["normal_moments"]
                 deposit_count += result["deposit_count"]
                 deposit_w2 += result["deposit_w2"]
+                if result.get("cell_flux") is not None:
+                    cell_flux += result["cell_flux"]
                 rays += batch_rays
                 traced += n
                 bar.update(n)
     dr.sync_thread()
     seconds = time.perf_counter() - t0
     recv_flux = (flux_e if elements is not None else flux)[:recv.count].mean(axis=1)
-    recv.uncache(receiver_spread(moments, normal_moments, effective_count(recv_flux, deposit_w2,
-                                                                          deposit_count),
-                                 recv_flux, mean_normals(recv)) > SPREAD_MAX)
+    was_diffuse = np.asarray(recv.is_diffuse, dtype=bool).copy()
+    area_normal = mean_normals(recv)
+    uneven = receiver_spread(moments, normal_moments, effective_count(recv_flux, deposit_w2,
+                                                                      deposit_count),
+                             recv_flux, area_normal) > SPREAD_MAX
+    recv.uncache(uneven)
     E = units.irradiance_from_flux(flux[:N], _receiving_area(patches, flux[:N]))
     extra = {}
     if elements is not None:
         E_e = units.irradiance_from_flux(flux_e[:elements.count],
                                          _receiving_area(elements, flux_e[:elements.count]))
-        extra = dict(elements=elements, E_elements=E_e,
+        bend = np.sqrt(np.maximum(1.0 - np.sum(area_normal ** 2, axis=1), 0.0))
+        refine = refinable(elements, uneven & was_diffuse, bend)
+        grid = ElementGrid(elements, frames, refine, cell_flux[refine],
+                           cell_areas(elements, frames, refine), E_e[refine])
+        extra = dict(elements=elements, E_elements=E_e, grid=grid,
                      B_reflected_elements=units.reflected_radiosity(elements.albedo, E_e))
     return RadiositySolution(
         patches=patches,

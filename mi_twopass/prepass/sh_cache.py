@@ -96,7 +96,9 @@ class CachedReceivers:
     the near field's triangles with their R_t. A receiver is cached where its shape is
     Lambertian (:mod:`mi_twopass.scene.lambertian`), it is diffuse on the side hit, not cut by
     geometry and not unevenly lit (``is_diffuse``: :mod:`mi_twopass.scene.patches`,
-    :func:`~mi_twopass.prepass.radiosity.receiver_spread`) and not a bright reflector
+    :func:`~mi_twopass.prepass.radiosity.receiver_spread`) unless refined into cells that
+    each hold their own light (:mod:`~mi_twopass.prepass.element_grid`, read at the point
+    hit; since session 22), and not a bright reflector
     (:func:`bright_receivers`). The SH gather reads B_r/π only there (:func:`gather_far_field`),
     only cached surfaces send R_t into the near field, and the render's path ends only there;
     everywhere else (glossy, glass, a cut or bright receiver, a shape without patches, the
@@ -189,6 +191,23 @@ def _triangles(mesh, ids, R):
             np.asarray(R, dtype=np.float64)[tri[keep]])
 
 
+def refined_mask(solution) -> np.ndarray:
+    """(M,) bool over the elements of ``solution``: refined into cells
+    (:attr:`~mi_twopass.prepass.radiosity.RadiositySolution.grid`, its unevenly lit flat
+    elements), so read at the point hit rather than as their mean."""
+    mask = np.zeros(solution.elements.count, dtype=bool)
+    if solution.grid is not None:
+        mask[solution.grid.ids] = True
+    return mask
+
+
+def refined_count(solution) -> int:
+    """Number of elements of ``solution`` refined into cells (0 without a solution)."""
+    if solution is None or getattr(solution, "grid", None) is None:
+        return 0
+    return solution.grid.count
+
+
 def cached_receivers(scene, solution, lambertian, contrast: float = 0.0) -> CachedReceivers:
     """:class:`CachedReceivers` of ``solution`` (a
     :class:`~mi_twopass.prepass.radiosity.RadiositySolution`): its elements where it has
@@ -205,7 +224,8 @@ def cached_receivers(scene, solution, lambertian, contrast: float = 0.0) -> Cach
     if solution.elements is None:
         return CachedReceivers(P, p_cached, near_p, p_bright)
     E = solution.elements
-    e_ok = np.asarray(E.is_diffuse, dtype=bool) & lam(E)
+    # an unevenly lit element refined into cells (:mod:`.element_grid`) is read by its cell
+    e_ok = (np.asarray(E.is_diffuse, dtype=bool) | refined_mask(solution)) & lam(E)
     e_bright = bright_receivers(solution.B_reflected_elements, E.area, e_ok, contrast) \
         if contrast > 0 else np.zeros(0, np.uint32)
     # each element's patch, from its first triangle
