@@ -260,7 +260,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          "samples" marks the SH sample positions (cluster centres) in white over B_D/π.
 
     After a render, ``stats`` adds: ``cache_reads`` (cache vertices), ``table_reads`` (those
-    served by the pixel table), ``pixel_table`` (pixel centres with a value), ``solution_reads``
+    served by the pixel table), ``uncovered_reads`` (diffuse camera-chain vertices the far field
+    does not hold, traced on), ``pixel_table`` (pixel centres with a value), ``solution_reads``
     (rays past an uncached surface that ended on the coarse solution), ``ART`` (render seconds),
     ``NRT`` (rays traced for GI: the SH gather rays plus the radiosity particles' rays),
     ``NFGS`` (number of SH samples = clusters), ``CS`` (cache bytes: SH field + BVH + start
@@ -339,7 +340,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         if self.pixel_table and self.debug == "none" and s.cache is not None \
                 and sensor is not None and self.reads_cache:
             s.pixels = PixelTable.build(
-                scene, sensor, lambda si, n, active: self.irradiance(s, si, n, active)[0],
+                scene, sensor, lambda si, n, active: self.irradiance(s, si, n, active)[::2],
                 s.lambertian.at, s.alpha)
         return s
 
@@ -375,16 +376,18 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
     # -- render-time irradiance -------------------------------------------------------------
     def irradiance_terms(self, si, n, active, s=None):
-        """(B_D, λ·B_C, BVH visits) at ``si`` with viewer-facing normal ``n`` (``s``: the
-        prepass, default the integrator's)."""
+        """(B_D, λ·B_C, BVH visits, covered) at ``si`` with viewer-facing normal ``n`` (``s``:
+        the prepass, default the integrator's); ``covered``: the far field holds the point
+        (clusters of its orientation near it, :meth:`RadianceCache.coefficients`)."""
         s = self.structure if s is None else s
-        L_F = s.cache.coefficients(si.p, active)
+        L_F, covered = s.cache.coefficients(si.p, active, n, coverage=True)
         B_D = s.cache.far_field(si.p, n, active, coeffs=L_F)
         if self.near_weight == 0.0:
-            return B_D, mi.Color3f(0.0), mi.UInt32(0)
+            return B_D, mi.Color3f(0.0), mi.UInt32(0), covered
         B_C, visits = s.near.correction(si.p, n, B_D, s.alpha, active,
                                            L_F=L_F if self.near_far == "direction" else None)
-        return B_D, self.near_weight * dr.select(active, B_C, 0.0), dr.select(active, visits, 0)
+        return B_D, self.near_weight * dr.select(active, B_C, 0.0), dr.select(active, visits, 0), \
+            covered
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         if self.debug != "none":
@@ -422,6 +425,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         alpha = dr.opaque(mi.Float, s.alpha)  # follows the prepass: a literal compiled per seed
         n_cache = mi.UInt32(0)
         n_table = mi.UInt32(0)
+        uncovered = mi.UInt32(0)
         n_solution = mi.UInt32(0)
         visits = mi.UInt32(0)
 
@@ -474,12 +478,16 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
             read = active_next & camera_chain & diffuse & reads_cache
             if reads_cache:
                 camera_hit = depth == 0
-                Lc, v, served = dr.if_stmt(
+                Lc, v, served, covered = dr.if_stmt(
                     (si, ray, read, camera_hit), read,
                     lambda si, ray, read, camera_hit: self.cache_term(si, ray, bsdf, ctx, read,
                                                                       camera_hit),
                     lambda si, ray, read, camera_hit: (mi.Color3f(0.0), mi.UInt32(0),
-                                                       mi.Bool(False)))
+                                                       mi.Bool(False), mi.Bool(False)))
+                # a vertex the far field does not hold (no cluster of its orientation near
+                # it) is not a cache vertex: its path goes on as at a surface not cached
+                uncovered += dr.select(read & ~covered, 1, 0)
+                read &= covered
                 L += beta * Lc
                 n_cache += dr.select(read, 1, 0)
                 n_table += dr.select(served, 1, 0)
@@ -496,14 +504,16 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
         self.count_after((L,), implicit_rays=n_implicit, explicit_rays=n_explicit,
                          cache_reads=n_cache, table_reads=n_table, solution_reads=n_solution,
+                         uncovered_reads=uncovered,
                          bvh_visits=visits)
         return L, mi.Bool(True), []
 
     def irradiance(self, s, si, n, active):
         """The cache's irradiance max(B_D + λ B_C, 0) (never negative: where B_C
-        over-corrects, §6, the sum is clamped) and the BVH nodes visited."""
-        B_D, B_C, visits = self.irradiance_terms(si, n, active, s)
-        return dr.select(active, dr.maximum(B_D + B_C, 0.0), 0.0), visits
+        over-corrects, §6, the sum is clamped; 0 where the far field does not hold the
+        point), the BVH nodes visited and where it holds it → ``(E, visits, covered)``."""
+        B_D, B_C, visits, covered = self.irradiance_terms(si, n, active, s)
+        return dr.select(covered, dr.maximum(B_D + B_C, 0.0), 0.0), visits, covered
 
     @staticmethod
     def viewer_normal(si, ray):
@@ -517,29 +527,32 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         Where the vertex is the camera ray's own hit (``camera_hit``) and the prepass has a
         :class:`~mi_twopass.prepass.pixel_table.PixelTable`, E is interpolated from its pixel
         centres where they lie on the vertex's surface; a symbolic branch evaluates it
-        everywhere else. → ``(value, BVH nodes visited, read from the table)``."""
+        everywhere else. → ``(value, BVH nodes visited, read from the table, covered)``;
+        ``covered`` False where the far field does not hold the vertex (value 0): the caller
+        traces the path on there as at a surface the cache does not hold."""
         s = self.structure
         n = self.viewer_normal(si, ray)
         if s.pixels is not None:
             E, served = s.pixels.lookup(si.p, n, active & camera_hit)
             need = active & ~served
-            E_here, visits = dr.if_stmt(
+            E_here, visits, covered = dr.if_stmt(
                 (si, n, need), need,
                 lambda si, n, need: self.irradiance(s, si, n, need),
-                lambda si, n, need: (mi.Color3f(0.0), mi.UInt32(0)))
+                lambda si, n, need: (mi.Color3f(0.0), mi.UInt32(0), mi.Bool(False)))
             E = dr.select(served, E, E_here)
+            covered = served | covered
         else:
-            E, visits = self.irradiance(s, si, n, active)
+            E, visits, covered = self.irradiance(s, si, n, active)
             served = mi.Bool(False)
         up = mi.Vector3f(0.0, 0.0, dr.select(mi.Frame3f.cos_theta(si.wi) < 0, -1.0, 1.0))
         f = bsdf.eval(ctx, si, up, active)  # = ρ/π · |cos| with cos = 1
-        return dr.select(active, f * E, 0.0), visits, served
+        return dr.select(active & covered, f * E, 0.0), visits, served, active & covered
 
     def sample_debug(self, scene, sampler, ray, active):
         """Debug views at the first non-delta hit (delta surfaces followed as a path)."""
         max_delta = MAX_DELTA_DEPTH if self.max_depth < 0 else min(self.max_depth, MAX_DELTA_DEPTH)
         si, ray, beta, _, gather = first_nondelta_hit(scene, sampler, ray, active, max_delta)
-        B_D, B_C, visits = self.irradiance_terms(si, self.viewer_normal(si, ray), gather)
+        B_D, B_C, visits, _ = self.irradiance_terms(si, self.viewer_normal(si, ray), gather)
         self.count("bvh_visits", visits)
         if self.debug == "B_D":
             value = B_D / dr.pi

@@ -160,7 +160,7 @@ class RadiosityGatherIntegrator(FarGatherIntegrator):
         counted = far & ~pre.virtual.contains(pid, far) if pre.virtual.count else far
         if sol.elements is None:
             return sol.patch_reflected_radiance(pid, counted), far
-        return sol.receiver_reflected_radiance(receiver, counted), far
+        return sol.receiver_reflected_radiance(receiver, counted, si.p), far
 
     def sample_virtual(self, scene, sampler, si, bsdf, ctx, r_thresh, active, scale=1.0):
         """One explicit sample of a virtual luminaire: f · (B_r/π) · G / pdf, for |y−x| ≥ r_thresh."""

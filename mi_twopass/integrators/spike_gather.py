@@ -401,7 +401,8 @@ class SpikeGatherIntegrator(FarGatherIntegrator):
             if want_indirect:
                 vl_listed = self.listed_virtual(lights, prev_lights, si, far & from_list)
                 # the receiving element hit (the patch's value without elements)
-                L += beta * sol.receiver_reflected_radiance(hit_receiver, far & ~vl_listed)
+                L += beta * sol.receiver_reflected_radiance(hit_receiver, far & ~vl_listed,
+                                                            si.p)
 
             active_next = active & si.is_valid() & ~far & (depth + 1 < max_depth)
             bsdf = si.bsdf(ray)

@@ -94,9 +94,11 @@ class PixelTable:
 
     @classmethod
     def build(cls, scene, sensor, irradiance, diffuse_at, alpha: float) -> "PixelTable | None":
-        """Evaluate ``irradiance(si, n, active) -> Color3f`` (the cache's max(B_D + λB_C, 0)
-        at ``si`` with viewer-facing geometric normal ``n``) at the first hit of every pixel
-        centre's ray where ``diffuse_at(si, active)`` (the surfaces that read the cache).
+        """Evaluate ``irradiance(si, n, active) -> (Color3f, Bool)`` (the cache's
+        max(B_D + λB_C, 0) at ``si`` with viewer-facing geometric normal ``n``, and where the
+        cache holds the point) at the first hit of every pixel centre's ray where
+        ``diffuse_at(si, active)`` (the surfaces that read the cache); a centre the cache does
+        not hold has no value.
         None for a sensor that does not project points onto its film (:meth:`projects`)."""
         if not cls.projects(sensor):
             return None
@@ -104,7 +106,9 @@ class PixelTable:
         si = scene.ray_intersect(ray)
         ok = si.is_valid() & diffuse_at(si, si.is_valid())
         n = dr.select(dr.dot(si.n, ray.d) > 0, -si.n, si.n)
-        E = dr.select(ok, irradiance(si, n, ok), 0.0)
+        E, held = irradiance(si, n, ok)
+        ok &= held
+        E = dr.select(ok, E, 0.0)
         return cls(sensor, width, height, E, mi.Point3f(si.p), mi.Vector3f(n), ok,
                    si.is_valid(), REACH_ALPHA * alpha)
 

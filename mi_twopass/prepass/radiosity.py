@@ -160,9 +160,13 @@ class RadiositySolution:
         return receivers.lookup(si, active)
 
     def receiver_cached(self, rid, active=True):
-        """:meth:`cached_at` of the receiver ``rid`` (:meth:`receiver_at`)."""
+        """:meth:`cached_at` of the receiver ``rid`` (:meth:`receiver_at`): diffuse, uncut and
+        evenly lit, or refined into cells (:attr:`grid`; read with the point hit)."""
         receivers = self.elements if self.elements is not None else self.patches
-        return receivers.gather("is_diffuse", rid, active)
+        cached = receivers.gather("is_diffuse", rid, active)
+        if self.elements is not None and self.grid is not None and self.grid.count:
+            cached |= self.grid.refined(rid, active)
+        return cached
 
     def receiver_reflected_radiance(self, rid, active=True, p=None):
         """:meth:`reflected_radiance` of the receiver ``rid`` (:meth:`receiver_at`): with

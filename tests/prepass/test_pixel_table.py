@@ -72,7 +72,7 @@ def table_and_direct(scene, integ):
     s = integ.structure
     si, n, ok = jittered_hits(scene)
     E_table, served = s.pixels.lookup(si.p, n, ok)
-    E_here, _ = integ.irradiance(s, si, n, ok)
+    E_here, _, _ = integ.irradiance(s, si, n, ok)
     return (np.asarray(E_table).T, np.asarray(E_here).T, np.asarray(served),
             np.asarray(ok))
 

@@ -445,6 +445,7 @@ def test_virtual_luminaire_points_are_reached_only_where_the_radiosity_is_cached
     light twice: veach-bidir +2.6 %). The floor under a light 5 cm above its corner: its
     patches are virtual luminaires, the elements at the corner are unevenly lit."""
     from mi_twopass.prepass.radiosity import RadiositySettings, build, virtual_point_reached
+    from mi_twopass.prepass.sh_cache import refined_mask
 
     scene = mi.load_dict({
         "type": "scene",
@@ -465,9 +466,17 @@ def test_virtual_luminaire_points_are_reached_only_where_the_radiosity_is_cached
     si.wi = mi.Vector3f(0, 0, 1)
     probe = mi.Ray3f(top, mi.Vector3f(0, 0, -1))
     pid = pre.patches.lookup(scene.ray_intersect(probe))
-    reached = np.asarray(virtual_point_reached(scene, pre.solution, si, mi.Vector3f(0, 0, -1),
-                                               pid, mi.Float(1.0), 1.0, True))
-    assert np.array_equal(reached, ~el.is_uneven)
+
+    def reached():
+        return np.asarray(virtual_point_reached(scene, pre.solution, si, mi.Vector3f(0, 0, -1),
+                                                pid, mi.Float(1.0), 1.0, True))
+
+    # an uneven element refined into cells is cached (the gather reads its cell) and reached
+    refined = refined_mask(pre.solution)
+    assert np.array_equal(reached(), ~el.is_uneven | refined)
+    # without its cells it is not cached, and the explicit strategy leaves it out
+    pre.solution.grid = None
+    assert np.array_equal(reached(), ~el.is_uneven)
 
 
 # -- which receivers are cached: the noise floor of the spread test -------------------------
