@@ -22,6 +22,34 @@ from mi_twopass.scene.lambertian import LambertianShapes
 from mi_twopass.scenefile import load_scene
 
 
+def gather_rays(scene, n):
+    """``n`` camera rays' first Lambertian hits, one cosine-sampled ray each on the side seen:
+    ``(ray, its hit, the Lambertian mask of the first hits)``."""
+    smp = mi.load_dict({"type": "independent"})
+    smp.seed(1, n)
+    ray0, _ = scene.sensors()[0].sample_ray(0.0, 0.5, smp.next_2d(), smp.next_2d())
+    si0 = scene.ray_intersect(ray0)
+    ok0 = LambertianShapes(scene).at(si0)
+    d_local = mi.warp.square_to_cosine_hemisphere(smp.next_2d())
+    d_local = dr.select(mi.Frame3f.cos_theta(si0.wi) < 0, -d_local, d_local)  # the seen side
+    ray = si0.spawn_ray(si0.to_world(d_local))
+    return ray, scene.ray_intersect(ray, ok0), ok0
+
+
+def reflected_by_path(scene, ray, hit, active, paths):
+    """The light ``path`` finds along ``ray`` (mean of ``paths`` estimates) less the emission
+    at its ``hit``: the reflected light a cache read there stands for."""
+    path = mi.load_dict({"type": "path"})
+    acc = dr.zeros(mi.Color3f, dr.width(ray.o))
+    for m in range(paths):
+        sp = mi.load_dict({"type": "independent"})
+        sp.seed(100 + m, dr.width(ray.o))
+        L, _, _ = path.sample(scene, sp, ray, None, active)
+        acc += mi.Color3f(L)
+        dr.eval(acc)
+    return acc / paths - hit.emitter(scene).eval(hit, active)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("scene")
@@ -36,27 +64,11 @@ def main():
     mi.render(scene, integrator=integ, spp=1, seed=a.seed)  # builds the prepass
     sol = integ.structure.solution
     n = a.lanes
-    smp = mi.load_dict({"type": "independent"})
-    smp.seed(1, n)
-    ray0, _ = scene.sensors()[0].sample_ray(0.0, 0.5, smp.next_2d(), smp.next_2d())
-    si0 = scene.ray_intersect(ray0)
-    ok0 = LambertianShapes(scene).at(si0)
-    d_local = mi.warp.square_to_cosine_hemisphere(smp.next_2d())
-    d_local = dr.select(mi.Frame3f.cos_theta(si0.wi) < 0, -d_local, d_local)  # the seen side
-    ray = si0.spawn_ray(si0.to_world(d_local))
-    si1 = scene.ray_intersect(ray, ok0)
+    ray, si1, ok0 = gather_rays(scene, n)
     far = ok0 & si1.is_valid() & (si1.t >= integ.r_thresh(scene))
     far &= sol.cached_at(si1, far)
     F = sol.reflected_radiance(si1, far)
-    path = mi.load_dict({"type": "path"})
-    acc = dr.zeros(mi.Color3f, n)
-    for m in range(a.paths):
-        sp = mi.load_dict({"type": "independent"})
-        sp.seed(100 + m, n)
-        L, _, _ = path.sample(scene, sp, ray, None, far)
-        acc += mi.Color3f(L)
-        dr.eval(acc)
-    P = acc / a.paths - si1.emitter(scene).eval(si1, far)
+    P = reflected_by_path(scene, ray, si1, far, a.paths)
     mask = np.asarray(far)
     Fn = np.asarray(F).T.mean(1)[mask]
     Pn = np.asarray(P).T.mean(1)[mask]

@@ -16,7 +16,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_twopass.scene.lambertian import LambertianShapes
+from far_gather_hits import gather_rays, reflected_by_path  # (tools/, the script's folder)
 from mi_twopass.scenefile import load_scene
 
 
@@ -36,15 +36,7 @@ def main():
     if grid is None or not grid.count:
         print("no refined elements")
         return
-    smp = mi.load_dict({"type": "independent"})
-    smp.seed(1, a.lanes)
-    ray0, _ = scene.sensors()[0].sample_ray(0.0, 0.5, smp.next_2d(), smp.next_2d())
-    si0 = scene.ray_intersect(ray0)
-    ok0 = LambertianShapes(scene).at(si0)
-    d_local = mi.warp.square_to_cosine_hemisphere(smp.next_2d())
-    d_local = dr.select(mi.Frame3f.cos_theta(si0.wi) < 0, -d_local, d_local)  # the seen side
-    ray = si0.spawn_ray(si0.to_world(d_local))
-    si1 = scene.ray_intersect(ray, ok0)
+    ray, si1, ok0 = gather_rays(scene, a.lanes)
     on = grid.refined(sol.elements.lookup(si1, ok0 & si1.is_valid()), ok0 & si1.is_valid())
     idx = dr.compress(on)
     m = dr.width(idx)
@@ -56,15 +48,7 @@ def main():
     rid = sol.elements.lookup(si1, si1.is_valid())
     mean = sol.receiver_reflected_radiance(rid, True)
     cell = sol.receiver_reflected_radiance(rid, True, si1.p)
-    path = mi.load_dict({"type": "path"})
-    acc = dr.zeros(mi.Color3f, m)
-    for k in range(a.paths):
-        sp = mi.load_dict({"type": "independent"})
-        sp.seed(100 + k, m)
-        L, _, _ = path.sample(scene, sp, ray, None, True)
-        acc += mi.Color3f(L)
-        dr.eval(acc)
-    traced = acc / a.paths - si1.emitter(scene).eval(si1, True)
+    traced = reflected_by_path(scene, ray, si1, True, a.paths)
     grey = lambda c: np.asarray(c).T.mean(axis=1)  # noqa: E731
     M, C, P = grey(mean), grey(cell), grey(traced)
     r = np.asarray(rid)
