@@ -659,13 +659,19 @@ def solve_radiosity(scene, patches: Patches | None = None, n_particles: int | No
 #: seed offset of the emission guide's pilot particles (apart from the solve's)
 _GUIDE_SEED = 0x5EED
 #: the relative standard deviation of the image's mean a guided solve is given particles for
-#: (:func:`guided_particles`, :func:`emission_guide.image_noise`): a quarter of the 1 % bound on
-#: an image's mean, which a prepass's noise does not average away with samples per pixel. Until
-#: session 19 it bounded the noise of the camera-weighted flux of every deposit, the first
-#: vertex's direct light included, which emitter sampling renders without the solution:
-#: window_interior at 256² took the 8× cap, 2.03 M particles (now 1.40–1.67 M; the light read
-#: from the solution is 66 % of the image there)
-FLUX_NOISE = 0.0025
+#: (:func:`guided_particles`, :func:`emission_guide.image_noise`): half of the 1 % bound on an
+#: image's mean, which a prepass's noise does not average away with samples per pixel (one
+#: render's mean within it at 2 σ, the two renders of ``check`` at 2.8 σ). Until session 19 it
+#: bounded the noise of the camera-weighted flux of every deposit, the first vertex's direct
+#: light included, which emitter sampling renders without the solution: window_interior at 256²
+#: took the 8× cap, 2.03 M particles. Until session 22 it was a quarter of the bound (1.40–1.47
+#: M particles there, the only scene of scenes_xml/ and ../shared/scenes above the floor of
+#: ``particles_per_patch`` × patches). Measured on window_interior at 256², radiosity_gather,
+#: 0.0025 → 0.005: particles 1.47 M → 0.37 M, prepass 0.63 → 0.32 s, the spread of the image
+#: mean between prepass seeds 0.27 → 0.45 % (10 seeds), the bias part 7.72e-4 → 7.71e-4 and
+#: one 128-spp render's relMSE 3.97e-3 → 4.08e-3 (4 seeds); radiance_cache's bias part 1.38e-3
+#: → 1.37e-3, its mean's spread 0.44 → 0.48 % (its other prepass parts dominate)
+FLUX_NOISE = 0.005
 #: most particles a guided solve adds, as a multiple of ``particles_per_patch`` x patches
 MAX_PARTICLE_GROWTH = 8
 

@@ -193,8 +193,8 @@ def test_image_noise_is_the_read_lights_noise_times_its_share_of_the_image():
     assert G.image_noise(cells, pmf, cell_of, np.zeros(C), first, 1) == 0.0
 
 
-@pytest.mark.parametrize("noise, expected", [(0.0, 1000), (0.0025 * math.sqrt(500), 1000),
-                                             (0.0025 * math.sqrt(4000), 4000),
+@pytest.mark.parametrize("noise, expected", [(0.0, 1000), (R.FLUX_NOISE * math.sqrt(500), 1000),
+                                             (R.FLUX_NOISE * math.sqrt(4000), 4000),
                                              (1.0, 8000)])
 def test_guided_particle_count_follows_the_predicted_noise(noise, expected):
     assert R.guided_particles(1000, noise) == expected
