@@ -73,3 +73,9 @@ def vectors(x, cls):
     per component."""
     cols = np.asarray(x, dtype=np.float32).reshape(-1, 3).T
     return cls(*(jit(mi.Float, cols[i]) for i in range(3)))
+
+
+def id_table(x, cls):
+    """:func:`vectors` of ``x`` (n, 3) with a zero row appended: a per-id table whose invalid
+    id ``n`` (a miss, the count of patches or elements) reads 0."""
+    return vectors(np.vstack([np.asarray(x, np.float64).reshape(-1, 3), np.zeros((1, 3))]), cls)

@@ -35,7 +35,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import units
-from ..host_arrays import jit, vectors
+from ..host_arrays import id_table, jit
 from ..tables import Tables
 
 #: cells along each axis of an element's grid
@@ -75,10 +75,15 @@ class ElementFrames:
         self.center = np.asarray(elements.center, dtype=np.float64).reshape(M, 3)
         self.inv_radius = 1.0 / np.maximum(receiver_radius(elements), 1e-30)
         self._tables = Tables(axis=jit(mi.UInt32, np.append(self.axis, 0).astype(np.uint32)),
-                              center=vectors(np.vstack([self.center, np.zeros((1, 3))]),
-                                             mi.Point3f),
+                              center=id_table(self.center, mi.Point3f),
                               inv_radius=jit(mi.Float, np.append(self.inv_radius, 0.0)
                                              .astype(np.float32)))
+
+    @property
+    def inv_radius_table(self):
+        """``mi.Float``: 1/r per element (0 for the invalid id), the particle kernel's scale of
+        the offset (p − c)/r it deposits and :meth:`cell_of_offset` reads."""
+        return self._tables["inv_radius"]
 
     def cell_of_offset(self, rid, offset, active=True):
         """``mi.UInt32``: the cell of element ``rid`` at ``offset`` = (p − c) / r (0 for lanes
@@ -196,12 +201,17 @@ def refinable(elements, uneven, bend) -> np.ndarray:
     that (diffuse, not cut by geometry: ``elements.is_diffuse`` before the solve uncached the
     uneven ones, so the caller passes it ANDed in), flat (``bend`` < ``FLAT_BEND``) and
     exposed (≥ ``MIN_EXPOSURE`` of the geometric area)."""
+    return np.nonzero(np.asarray(uneven, dtype=bool) & (np.asarray(bend) < FLAT_BEND)
+                      & (_exposure(elements) >= MIN_EXPOSURE))[0]
+
+
+def _exposure(elements) -> np.ndarray:
+    """(M,) the open fraction of each element, ``area / geometric_area`` (1 without the
+    exposure probe's geometric areas, 0 for an element of no area)."""
     area = np.asarray(elements.area, dtype=np.float64)
     geometric = getattr(elements, "geometric_area", None)
     geometric = area if geometric is None else np.asarray(geometric, dtype=np.float64)
-    exposed = area >= MIN_EXPOSURE * geometric
-    return np.nonzero(np.asarray(uneven, dtype=bool) & (np.asarray(bend) < FLAT_BEND)
-                      & exposed & (geometric > 0))[0]
+    return np.where(geometric > 0, area / np.where(geometric > 0, geometric, 1.0), 0.0)
 
 
 class ElementGrid:
@@ -220,13 +230,7 @@ class ElementGrid:
         M, S, K2 = elements.count, len(self.ids), frames.res ** 2
         areas = np.asarray(areas, dtype=np.float64).reshape(S, K2)
         total = areas.sum(axis=1, keepdims=True)
-        geometric = getattr(elements, "geometric_area", None)
-        exposure = np.ones(S) if geometric is None else np.where(
-            np.asarray(geometric)[self.ids] > 0,
-            np.asarray(elements.area)[self.ids] / np.where(np.asarray(geometric)[self.ids] > 0,
-                                                           np.asarray(geometric)[self.ids], 1.0),
-            1.0)
-        exposed = areas * exposure[:, None]  # ≥ MIN_EXPOSURE of each (refinable)
+        exposed = areas * _exposure(elements)[self.ids][:, None]  # ≥ MIN_EXPOSURE (refinable)
         wide = areas >= MIN_CELL_FRACTION * total
         E_mean = np.asarray(E_mean, dtype=np.float64).reshape(S, 1, 3)
         grey = E_mean.mean(axis=2, keepdims=True)
@@ -241,11 +245,9 @@ class ElementGrid:
         self.B_reflected = albedo[:, None, :] * E
         base = np.full(M + 1, 0xFFFFFFFF, np.uint32)
         base[self.ids] = (np.arange(S) * K2).astype(np.uint32)
-        L = units.radiance_from_radiosity(
-            np.vstack([self.B_reflected.reshape(-1, 3), np.zeros((1, 3))])).astype(np.float32)
         self._tables = Tables(base=jit(mi.UInt32, base),
-                              L=mi.Color3f(*(jit(mi.Float, np.ascontiguousarray(L[:, c]))
-                                             for c in range(3))))
+                              L=id_table(units.radiance_from_radiosity(self.B_reflected),
+                                         mi.Color3f))
 
     @property
     def count(self) -> int:

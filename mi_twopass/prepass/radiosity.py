@@ -61,7 +61,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import units
-from ..host_arrays import component_sums, jit
+from ..host_arrays import component_sums, id_table, jit
 from ..progress import progress as progress_bar
 from ..rays import spawn_ray
 from ..scene.bounds import scene_bounds
@@ -112,8 +112,7 @@ class RadiositySolution:
 
     def __post_init__(self):
         def table(B):
-            L = units.radiance_from_radiosity(np.vstack([B, np.zeros((1, 3))])).astype(np.float32)
-            return mi.Color3f(*(jit(mi.Float, np.ascontiguousarray(L[:, c])) for c in range(3)))
+            return id_table(units.radiance_from_radiosity(B), mi.Color3f)
 
         self._L_reflected = table(self.B_reflected)
         self._L_total = table(self.B_emitted + self.B_reflected)
@@ -287,7 +286,8 @@ def _trace_batch(scene, patches, n, first_index, seed, n_total, max_bounces, ele
     if deposit_flux:
         target = dr.zeros(mi.Int64, 3 * (N + 1))
         target_e = dr.zeros(mi.Int64, 3 * (M + 1)) if elements is not None else None
-        recv_inv_r = jit(mi.Float, np.append(1.0 / np.maximum(receiver_radius(recv), 1e-30), 0.0)
+        recv_inv_r = frames.inv_radius_table if frames is not None and elements is not None \
+            else jit(mi.Float, np.append(1.0 / np.maximum(receiver_radius(recv), 1e-30), 0.0)
                               .astype(np.float32))
         target_m = dr.zeros(mi.Int64, 3 * (R + 1))
         target_nrm = dr.zeros(mi.Int64, 3 * (R + 1))

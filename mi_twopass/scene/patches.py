@@ -50,7 +50,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..host_arrays import columns, jit, vectors
+from ..host_arrays import columns, id_table, jit, vectors
 from ..seeds import numpy_rng
 from ..tables import Tables
 from .lambertian import is_lambertian
@@ -1039,8 +1039,7 @@ def _make_tables(patches, parts, tri_v, tri_p, tri_n):
         patch_inv_tri_area=jit(mi.Float, pad(inv_area.astype(np.float32))),
     )
 
-    def vec(x, cls):  # with the zero entry at N
-        return vectors(np.vstack([np.asarray(x, np.float64), np.zeros((1, 3))]), cls)
+    vec = id_table  # with the zero entry at N
 
     t.update(
         patch_is_diffuse=jit(mi.Bool, pad(patches.is_diffuse.astype(bool), False)),
