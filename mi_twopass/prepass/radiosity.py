@@ -667,10 +667,11 @@ _GUIDE_SEED = 0x5EED
 #: took the 8× cap, 2.03 M particles. Until session 22 it was a quarter of the bound (1.40–1.47
 #: M particles there, the only scene of scenes_xml/ and ../shared/scenes above the floor of
 #: ``particles_per_patch`` × patches). Measured on window_interior at 256², radiosity_gather,
-#: 0.0025 → 0.005: particles 1.47 M → 0.37 M, prepass 0.63 → 0.32 s, the spread of the image
-#: mean between prepass seeds 0.27 → 0.45 % (10 seeds), the bias part 7.72e-4 → 7.71e-4 and
-#: one 128-spp render's relMSE 3.97e-3 → 4.08e-3 (4 seeds); radiance_cache's bias part 1.38e-3
-#: → 1.37e-3, its mean's spread 0.44 → 0.48 % (its other prepass parts dominate)
+#: 0.0025 → 0.005 (``tools/flux_noise.py scenes_xml/window_interior.xml radiosity_gather``):
+#: particles 1.47 M → 0.37 M, prepass 0.58 → 0.34 s, the spread of the image mean between
+#: prepass seeds 0.26 → 0.45 % (10 seeds), the bias part 7.73e-4 → 7.71e-4 and one 128-spp
+#: render's relMSE 3.97e-3 → 4.07e-3 (4 seeds); radiance_cache's bias part 1.35e-3 → 1.36e-3,
+#: its mean's spread 0.47 → 0.51 % (its other prepass parts dominate)
 FLUX_NOISE = 0.005
 #: most particles a guided solve adds, as a multiple of ``particles_per_patch`` x patches
 MAX_PARTICLE_GROWTH = 8
