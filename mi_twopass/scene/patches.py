@@ -210,12 +210,45 @@ def _mesh_split(g, a, origin):
     return res, small, cluster.reshape(-1), n_clusters
 
 
-def _count(geoms, a, origin):
+class _MeshCount:
+    """What :func:`_count` needs of one mesh, sorted once per search: its faces by area,
+    largest first (the big faces at a target area are a prefix), and the small faces' centroids
+    relative to the grid's origin and normal bins, so a count sorts one key per small face and
+    copies nothing."""
+
+    def __init__(self, g, origin):
+        order = np.argsort(-g.face_area, kind="stable")
+        self.area = g.face_area[order]
+        self.neg_area = -self.area  # ascending, for searchsorted
+        self.rel = g.face_centroid[order] - origin
+        n = g.face_normal[order]
+        axis = np.argmax(np.abs(n), axis=1)
+        self.nbin = 2 * axis + (n[np.arange(len(n)), axis] < 0)
+
+    def front(self, a) -> int:
+        """Patches of the mesh's front side at target area ``a`` (:func:`_mesh_split`'s count):
+        the big faces' subdivisions plus the small faces' clusters."""
+        n_big = int(np.searchsorted(self.neg_area, -MERGE_FRACTION * a, side="right"))
+        res = np.maximum(1, np.rint(np.sqrt(self.area[:n_big] / a)))
+        total = int((res * res).sum())
+        if n_big == len(self.area):
+            return total
+        vox = np.floor(self.rel[n_big:] * (1.0 / math.sqrt(a))).astype(np.int64)
+        np.clip(vox, 0, (1 << _VOXEL_BITS) - 1, out=vox)
+        key = (((vox[:, 0] << _VOXEL_BITS) | vox[:, 1]) << _VOXEL_BITS | vox[:, 2]) << 3 \
+            | self.nbin[n_big:]
+        key.sort()
+        return total + 1 + int(np.count_nonzero(key[1:] != key[:-1]))
+
+
+def _count(geoms, a, origin, meshes=None):
+    """Patches of ``geoms`` at target area ``a`` (``meshes``: their :class:`_MeshCount` by
+    id, made here where not given)."""
     total = 0
     for g in geoms:
         if g.kind == KIND_MESH:
-            res, _, _, n_clusters = _mesh_split(g, a, origin)
-            front = int((res * res).sum()) + n_clusters
+            m = meshes.get(id(g)) if meshes is not None else None
+            front = (m or _MeshCount(g, origin)).front(a)
         else:
             nu, nv = _grid_dims(g, a)
             front = nu * nv
@@ -223,29 +256,56 @@ def _count(geoms, a, origin):
     return total
 
 
+#: the target-area search stops once the patches fill this share of the budget
+_FILL = 0.98
+
+
 def _choose_target_area(geoms, max_patches, origin):
-    """Smallest target area a (geometric bisection) whose patch count fits the budget."""
+    """The smallest target area a whose patch count fits the budget, to 0.5 % in a or 2 % in
+    the count (:data:`_FILL`): regula falsi on log count against log a (Illinois), the bracket
+    [lo, hi] always holding count(lo) > max_patches ≥ count(hi). The count of a triangle mesh
+    sorts a key per small face, so it costs what its faces do (0.1 s for 10^6): 28 counts of
+    a bisection took 4 s of the radiosity prepass of a 10^6-triangle mesh; this search makes
+    7–11 (the count falls about as 1/a, so the interpolation lands near the answer)."""
+    meshes = {id(g): _MeshCount(g, origin) for g in geoms if g.kind == KIND_MESH}
+    count = lambda a: _count(geoms, a, origin, meshes)  # noqa: E731
     total_area = sum(g.area for g in geoms)
     if total_area <= 0:
         total_area = 1.0
     hi = 4.0 * total_area
-    if _count(geoms, hi, origin) > max_patches:
-        warnings.warn(f"build_patches: the scene needs {_count(geoms, hi, origin)} patches at "
+    c_hi = count(hi)
+    if c_hi > max_patches:
+        warnings.warn(f"build_patches: the scene needs {c_hi} patches at "
                       f"least (a few per shape), more than max_patches={max_patches}",
                       stacklevel=3)
         return hi
     lo = total_area / max_patches / 16.0
-    if _count(geoms, lo, origin) <= max_patches:
+    c_lo = count(lo)
+    if c_lo <= max_patches:
         return lo
-    for _ in range(24):
-        mid = math.sqrt(lo * hi)
-        if _count(geoms, mid, origin) <= max_patches:
-            hi = mid
-        else:
-            lo = mid
-        if hi / lo < 1.005:
+    goal = math.log(max_patches + 0.5)
+    x_lo, x_hi = math.log(lo), math.log(hi)
+    f_lo, f_hi = math.log(c_lo) - goal, math.log(max(c_hi, 1)) - goal
+    side = 0
+    for _ in range(40):
+        if x_hi - x_lo < math.log(1.005) or c_hi >= _FILL * max_patches:
             break
-    return hi
+        w = x_hi - x_lo
+        x = x_hi - f_hi * w / (f_hi - f_lo)
+        x = min(max(x, x_lo + 0.02 * w), x_hi - 0.02 * w)
+        c = count(math.exp(x))
+        f = math.log(max(c, 1)) - goal
+        if c <= max_patches:
+            x_hi, f_hi, c_hi = x, f, c
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+        else:
+            x_lo, f_lo = x, f
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+    return math.exp(x_hi)
 
 
 # ----------------------------------------------------------------------------------------------
