@@ -8,7 +8,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..prepass.sh_cache import ALPHA_REL, BRIGHT_CONTRAST, CacheSettings
+from ..prepass.sh_cache import ALPHA_REL, BRIGHT_CONTRAST, NEAR_MERGE_REL, CacheSettings
 from ..prepass.pixel_table import PixelTable
 from ..prepass.sh_cache import build as build_cache
 from ..prepass.sh_cache import refined_count
@@ -240,6 +240,13 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - Cell size of the near field's leaf lists, in units of α (default: 0.5): a cache
          read in a listed cell sums its cell's triangles instead of walking the BVH; smaller
          cells list fewer triangles each but cost more prepass and memory.
+     * - near_merge_rel
+       - |float|
+       - Near-field triangles whose longest edge is below this many α are merged by vertex
+         clustering at cells of that side (default: 0.25; 0: never;
+         :mod:`~mi_twopass.prepass.near_merge`): a mesh of millions of triangles far smaller
+         than α costs the near field what the surface needs at α, not per triangle (stat
+         ``near_merged``: the triangles it took away).
      * - pixel_table
        - |bool|
        - Evaluate E once per pixel centre and interpolate it for the camera rays' own hits
@@ -266,6 +273,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     ``NRT`` (rays traced for GI: the SH gather rays plus the radiosity particles' rays),
     ``NFGS`` (number of SH samples = clusters), ``CS`` (cache bytes: SH field + BVH + start
     lists), ``bvh_visits`` (BVH nodes visited), ``near_triangles`` (after the lazy split),
+    ``near_merged`` (triangles the vertex clustering of small ones took away),
     ``split_complete``, ``refined_elements`` (unevenly lit elements read cell by cell:
     :mod:`~mi_twopass.prepass.element_grid`).
     FGO (time over a direct-only render) needs a second render:
@@ -293,6 +301,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.rays_per_cluster = read_int(props, "rays_per_cluster", 128, minimum=1)
         self.max_near_triangles = read_int(props, "max_near_triangles", 1 << 17, minimum=1)
         self.near_cell_rel = read_float(props, "near_cell_rel", 0.5, minimum=0.0, strict=True)
+        self.near_merge_rel = read_float(props, "near_merge_rel", NEAR_MERGE_REL, minimum=0.0)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
         self.near_far = read_choice(props, "near_far", "direction", ("direction", "mean"))
         self.direct = read_choice(props, "direct", "emitter", DIRECT_MODES)
@@ -303,7 +312,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     def settings(self):
         return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.radiosity,
                 self.max_points, self.max_clusters, self.rays_per_cluster,
-                self.max_near_triangles, self.near_cell_rel, self.direct,
+                self.max_near_triangles, self.near_cell_rel, self.near_merge_rel, self.direct,
                 self.bright_contrast, self.pixel_table, self.near_weight, self.near_far)
 
     @property
@@ -315,7 +324,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                              rays_per_cluster=self.rays_per_cluster,
                              bright_contrast=self.bright_contrast,
                              max_near_triangles=self.max_near_triangles,
-                             near_cell_rel=self.near_cell_rel, ignore_media=self.ignore_media,
+                             near_cell_rel=self.near_cell_rel,
+                             near_merge_rel=self.near_merge_rel, ignore_media=self.ignore_media,
                              path_only=not self.reads_cache and self.debug == "none",
                              debug_view=self.debug != "none",
                              spike=SpikeSettings() if self.direct == "spike" else None)
@@ -365,7 +375,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 "NRT": radiosity_rays + cache.rays, "sh_gather_rays": cache.rays,
                 "NFGS": cache.count, "shading_points": int(len(cache.points)),
                 "patches": int(s.patches.count), "bvh_nodes": near.node_count,
-                "near_triangles": int(len(near.verts)), "split_complete": s.split_complete,
+                "near_triangles": int(len(near.verts)), "near_merged": s.near_merged,
+                "split_complete": s.split_complete,
                 "CS": cs, "cache_bytes": s.nbytes, "alpha": s.alpha,
                 "pixel_table": s.pixels.count if s.pixels is not None else 0,
                 "refined_elements": refined_count(s.solution)}

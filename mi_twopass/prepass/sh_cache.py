@@ -81,6 +81,7 @@ from ..scene.view import collect_shading_points, view_diagonal
 from ..seeds import hash31
 from ..tables import Tables
 from .near_field import build_near_field, buried_triangles, split_near_triangles
+from .near_merge import merge_small_triangles
 from .radiosity import VL_CONTRAST, RadiositySettings, reclassified_patches
 from .radiosity import build as build_radiosity
 from .spike_grid import SpikeSettings, build_spike_prepass
@@ -839,6 +840,10 @@ ALPHA_REL = 0.03
 #: a patch whose reflected radiosity is this many times the cached patches' area-weighted mean
 #: is not cached (:func:`bright_receivers`): the contrast of GSII's virtual luminaires
 BRIGHT_CONTRAST = VL_CONTRAST
+#: near-field triangles whose longest edge is below this × alpha are merged by vertex
+#: clustering at cells of that side (:mod:`~mi_twopass.prepass.near_merge`): the merged ones
+#: are at most about alpha/2 across, the size the lazy split (§5) leaves
+NEAR_MERGE_REL = 0.25
 
 
 @dataclass(frozen=True)
@@ -860,6 +865,9 @@ class CacheSettings:
     bright_contrast: float = BRIGHT_CONTRAST
     max_near_triangles: int = 1 << 17
     near_cell_rel: float = 0.5
+    #: near-field triangles smaller than this × alpha are merged by vertex clustering
+    #: (:mod:`~mi_twopass.prepass.near_merge`); 0: never
+    near_merge_rel: float = NEAR_MERGE_REL
     ignore_media: bool = False
     #: no vertex reads the cache and no debug view needs it: build nothing (path tracing)
     path_only: bool = False
@@ -883,11 +891,14 @@ class CachePrepass:
     that reads it would take its arrays for loop state."""
 
     def __init__(self, scale, lambertian, alpha=0.0, patches=None, elements=None, solution=None,
-                 cache=None, near=None, split_complete=True, spike=None, cached=None):
+                 cache=None, near=None, split_complete=True, spike=None, cached=None,
+                 near_merged=0):
         self.scale, self.lambertian, self.alpha = scale, lambertian, alpha
         self.patches, self.elements, self.solution = patches, elements, solution
         self.cache, self.near, self.split_complete = cache, near, split_complete
         self.spike = spike
+        #: near-field triangles merged away as far smaller than alpha (near_merge)
+        self.near_merged = near_merged
         #: the surfaces the cache holds (:class:`CachedReceivers`), None where nothing is built
         self.cached = cached
         #: the cache's irradiance at the camera's pixel centres
@@ -980,6 +991,9 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
     # (fit_clusters): a cluster's far field stands for its points only where the near field
     # reaches across the cluster
     alpha = cache.alpha
+    # triangles far below alpha merged: the near field needs no finer detail (near_merge)
+    tri_vertices, tri_normal, tri_B, merged = merge_small_triangles(
+        tri_vertices, tri_normal, tri_B, settings.near_merge_rel * alpha)
     # §5: triangles near the camera's shading points split lazily until smaller than alpha
     shading = np.zeros((0, 3)) if points is None else points[0]
     verts, tri_n, tri_B, split_complete = split_near_triangles(
@@ -992,4 +1006,4 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
                             normals=None if points is None else points[1])
     return CachePrepass(scale=scale, lambertian=lambertian, alpha=alpha, patches=patches,
                         elements=elements, solution=solution, cache=cache, near=near,
-                        split_complete=split_complete, cached=cached)
+                        split_complete=split_complete, cached=cached, near_merged=merged)
