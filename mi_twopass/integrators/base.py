@@ -184,13 +184,13 @@ def _value_bytes(value) -> bytes:
     return f"{type(value).__name__}:{value!r}".encode()
 
 
-#: the 32-bit scalar types whose arrays the fingerprint copies to the host in one batch
+#: the 32-bit scalar types whose arrays the fingerprint reads as UInt32 words
 _WORD_TYPES = (dr.VarType.Float32, dr.VarType.UInt32, dr.VarType.Int32)
 
 
 def _device_words(value):
-    """A JIT array parameter of 32-bit scalars as ``(header, flat UInt32 array)``, to be
-    copied to the host with the others in one transfer; None for any other value."""
+    """A JIT array parameter of 32-bit scalars as ``(header, flat UInt32 array)`` to copy to
+    the host; None for any other value."""
     value = _plain_value(value)
     if not (dr.is_array_v(value) and dr.is_jit_v(value)) or dr.type_v(value) not in _WORD_TYPES:
         return None
@@ -209,37 +209,29 @@ def parameter_fingerprint(obj, skip_camera=False) -> str:
     vertex positions, transforms, the film size and camera pose...) changed in between. With
     ``skip_camera`` the parameters of sensors, films, samplers and reconstruction filters are
     left out (for prepasses that do not look through the camera). Cost: one host copy and hash
-    of every parameter array, ~1–2 ms per MB (README "Using it"). The 32-bit JIT arrays are
-    concatenated on the device and copied in one transfer. On many_lights.xml (494
-    parameters) the whole fingerprint takes 9 ms on two CPU cores and 13 ms on an H200,
-    mostly Python per parameter (``tools/twopass_overhead.py``, docs/results/gpu-2026-11-27b).
-    Copying each leaf array separately instead of ``dr.ravel`` cost more: 12 ms on the CPU
-    (ad hoc timing)."""
+    of every parameter array, ~1–2 ms per MB (README "Using it"), plus Python per parameter.
+    Each 32-bit JIT array is copied on its own (:func:`_device_words`: its reinterpretation
+    as UInt32 is one small kernel, the same for every array). Until session 23 they were
+    concatenated on the device and copied in one transfer: the concatenation is one kernel
+    with an input per array, compiled anew for every scene; with 1000 area lights (4000
+    parameters) it took 14 s, against 0.1 s copied one by one (on many_lights.xml, 494
+    parameters, 15–27 ms both ways; a one-off timing script)."""
     camera_types = (mi.Sensor, mi.Film, mi.Sampler, mi.ReconstructionFilter)
     params = mi.traverse(obj)
-    items = []  # (key, bytes) or (key, (header, UInt32 words on the device))
-    batch = []
+    h = hashlib.sha1()
     for key in params.keys():
         node = params.properties[key][2]
         if skip_camera and isinstance(node, camera_types):
             continue
         value = params[key]
-        words = _device_words(value)
-        if words is not None and dr.width(words[1]) > 0:
-            items.append((key, words[0], len(batch)))
-            batch.append(words[1])
-        else:
-            items.append((key, _value_bytes(value), None))
-    sizes = [dr.width(w) for w in batch]
-    host = np.asarray(dr.concat(batch)) if batch else np.zeros(0, np.uint32)
-    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    h = hashlib.sha1()
-    for key, data, index in items:
         h.update(key.encode())
         h.update(b"\0")
-        h.update(data)
-        if index is not None:
-            h.update(host[offsets[index]:offsets[index + 1]].tobytes())
+        words = _device_words(value)
+        if words is not None and dr.width(words[1]) > 0:
+            h.update(words[0])
+            h.update(np.asarray(words[1]).tobytes())
+        else:
+            h.update(_value_bytes(value))
         h.update(b"\1")
     return h.hexdigest()
 
