@@ -1,6 +1,6 @@
 """The Cornell box with its floor and two boxes as fine meshes (320,010 triangles in all).
 
-    .venv/bin/python docs/results/triangle-scaling-2026-11-28/make_finebox.py /tmp/finebox
+    .venv/bin/python docs/results/scene-scaling-2026-11-28/make_finebox.py /tmp/finebox
 
 Writes floor.obj (a 200 x 200 grid of [-1, 1]^2 facing +z, 80,000 triangles), cube.obj (each
 face of [-1, 1]^3 a 100 x 100 grid, 120,000 triangles) and finebox.xml (scenes_xml/cornell_box.xml
