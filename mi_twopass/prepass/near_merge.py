@@ -149,10 +149,13 @@ def merge_small_triangles(verts, tri_normal, tri_B, size: float):
 
     kept = ~touched  # bit for bit
     t_idx = np.flatnonzero(touched)
-    cc = corner_cell[t_idx]
+    # a corner's identity after the merge: its cell where it moves, else itself (a corner that
+    # stays, of a big triangle, meets no other)
+    own = C + np.arange(3 * len(t_idx)).reshape(-1, 3)
+    cc = np.where(moved[t_idx], corner_cell[t_idx], own)
     distinct = (cc[:, 0] != cc[:, 1]) & (cc[:, 1] != cc[:, 2]) & (cc[:, 0] != cc[:, 2])
     t_idx, cc = t_idx[distinct], cc[distinct]
-    # one triangle per (three cells, winding): the cells in a canonical rotation (smallest
+    # one triangle per (three corners, winding): the corners in a canonical rotation (smallest
     # first) keep the winding; the two windings of the same cells stay two triangles
     r = np.argmin(cc, axis=1)
     rows = np.arange(len(cc))

@@ -101,3 +101,19 @@ def test_a_fine_sphere_keeps_its_form_factor():
     coarse = correction_numpy(x, normal, zero, 100.0, v, nn, BB)
     assert fine[:, 0].min() > 0.1
     np.testing.assert_allclose(coarse, fine, rtol=0.02)
+
+
+def test_a_big_triangle_beside_small_ones_keeps_its_far_corners():
+    """A big triangle with one corner among small ones: that corner moves to its cell, the
+    two far ones stay where they are, even where they share a cell no small triangle
+    reaches (they are not one point)."""
+    fine, n = grid_square(32)  # edges 1/32, below the cell of 0.25
+    # one corner on the grid's rim, the other two in one cell (x = 1.6 / 0.25 = 6.4) that no
+    # small triangle reaches
+    big = np.array([[[1.0, 0.0, 0.0], [1.6, 0.0, 0.0], [1.6, 0.1, 0.0]]])
+    tris = np.concatenate([fine, big])
+    normals = np.concatenate([n, [[0.0, 0.0, 1.0]]])
+    v, nn, _, _ = merge_small_triangles(tris, normals, np.ones((len(tris), 3)), 0.25)
+    far = [np.any(np.all(np.isclose(v, c), axis=-1)) for c in ([1.6, 0.0, 0.0], [1.6, 0.1, 0.0])]
+    assert all(far)  # both far corners survive, in one triangle
+    assert np.allclose(nn[:, 2], 1.0)
