@@ -54,8 +54,7 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
     """The name of the winner once no bias hidden in its pilot's noise can change the choice,
     as far as the budget can tell.
 
-    While the composition :func:`cost.pick` takes (the best score, a tie going to the bias
-    known best) may be biased (:attr:`cost.Composition.biased`) and a
+    While the best-scoring composition may be biased (:attr:`cost.Composition.biased`) and a
     bias below its pilot's detection limit could make it lose to the runner-up
     (:func:`cost.hidden_bias_may_decide`), both it and path are sampled further on the same
     pixels, to the samples per pixel :func:`cost.check_samples` asks for or as many as the
@@ -73,7 +72,7 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
     n_runs = 0
     t_start = time.perf_counter()
     while True:
-        name = cost.pick(measured, spp)
+        name = min(measured, key=lambda n: measured[n].score(spp))
         c, integ, run = runs[name]
         m = measured[name]
         runner_up = min((measured[n].score(spp) for n in measured if n != name),

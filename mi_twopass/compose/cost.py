@@ -55,13 +55,6 @@ from ..evaluation.metrics import BLOCK, BLOCK_RELMSE_MAX, RELMSE_EPS
 MIN_GAIN = 1.25
 #: rexes are tried only where the caustic part carries this share of path's pilot variance
 CAUSTIC_SHARE = 0.2
-#: scores within this factor of the lowest are a tie, which the candidate whose bias is known
-#: best wins (:func:`pick`): the pilot's variance estimates are themselves a few per cent off,
-#: and a bias below its pilot's detection limit is the error no sample count removes (mixed_room
-#: at 256 spp in session 22's bench: the radiance cache won on a score 1.3 % below the
-#: radiosity gather's, with a bias standard error about 4 times as large, and rendered
-#: 1.7 times the error)
-TIE = 1.10
 
 #: a pilot pair's bias estimate counts beyond this many standard errors (bias_squared)
 BIAS_SIGMAS = 3.0
@@ -275,15 +268,6 @@ class Measured:
     def score(self, spp: int) -> float:
         """Predicted relMSE × seconds of a render of ``spp`` samples per pixel."""
         return self.predicted_error(spp) * self.predicted_seconds(spp)
-
-
-def pick(measured: dict, spp: int) -> str:
-    """The candidate to render ``spp`` samples per pixel: the lowest score; among those within
-    :data:`TIE` of it, the smallest bias standard error (path's is 0: it is the reference),
-    then the lowest score."""
-    best = min(m.score(spp) for m in measured.values())
-    tied = [n for n, m in measured.items() if m.score(spp) <= TIE * best]
-    return min(tied, key=lambda n: (measured[n].bias_se, measured[n].score(spp)))
 
 
 def spend(measured: dict, seconds: float) -> None:
@@ -675,9 +659,4 @@ class Decision:
                 f"{m.predicted_seconds(self.spp):.3g} s)")
         if others:
             text += "; others " + ", ".join(others)
-        best = min(self.measured, key=lambda n: self.measured[n].score(self.spp))
-        if best != self.chosen.name:
-            text += (f"; a tie (within {TIE:g}x) with {best}, whose bias standard error "
-                     f"{self.measured[best].bias_se:.3g} is above its "
-                     f"{m.bias_se:.3g}")
         return text

@@ -93,31 +93,6 @@ def test_a_built_prepass_is_spent_whichever_candidate_renders():
     assert lists.prepass_seconds == 3.0  # its own prepass is still reported
 
 
-def test_a_tie_goes_to_the_bias_known_best_and_a_clear_lead_stands():
-    """Scores within cost.TIE of the lowest are a tie: the smaller bias standard error wins
-    it (session 22's mixed_room at 256 spp: the cache 1.3 % below the radiosity gather, its
-    bias standard error about 4 times as large). Beyond TIE the lowest score wins whatever
-    its standard error; path (standard error 0) wins any tie it is in."""
-    def m(variance, se):
-        return cost.Measured(prepass_seconds=1.0, seconds_per_spp=0.03, variance=variance,
-                             bias2=0.0, mean_ratio=1.0, bias_se=se)
-    spp = 256
-    cache, radiosity = m(0.87, 0.0094), m(0.887, 0.0022)
-    assert cache.score(spp) < radiosity.score(spp) <= cost.TIE * cache.score(spp)
-    measured = {"cache": cache, "radiosity": radiosity}
-    assert cost.pick(measured, spp) == "radiosity"
-    decision = cost.Decision(chosen=cost.COMPOSITIONS[3], spp=spp)
-    decision.measured = {cost.COMPOSITIONS[3].name: radiosity, cost.COMPOSITIONS[4].name: cache}
-    assert "a tie" in decision.reason()
-    clear = m(0.7, 0.0094)
-    assert radiosity.score(spp) > cost.TIE * clear.score(spp)
-    assert cost.pick({"cache": clear, "radiosity": radiosity}, spp) == "cache"
-    path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.03, variance=0.887 * 1.05,
-                         bias2=0.0, mean_ratio=1.0)
-    path.sunk_seconds = 1.0
-    assert cost.pick({"cache": cache, "path": path}, spp) == "path"
-
-
 def test_prepass_floor_counts_light_paths_at_path_cost():
     path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.02, variance=1.0, bias2=0.0,
                          mean_ratio=1.0)
