@@ -915,12 +915,16 @@ def cell_weights(sources: Sources, lists_l, lists_s, lists_g, points, normals, p
     e_idx = np.repeat(np.arange(n_entries), n_pts)
     j_idx = point_offsets[lists_l][e_idx] + (np.arange(e_idx.size)
                                               - np.repeat(np.cumsum(n_pts) - n_pts, n_pts))
-    sid = lists_s[e_idx]
+    # the sources and points uploaded once, gathered per (entry, point) pair on the device
+    sid = jit(mi.UInt32, lists_s[e_idx].astype(np.uint32))
+    j = jit(mi.UInt32, j_idx.astype(np.uint32))
+    sphere = mi.Vector4f(*_dr_cols(np.column_stack([sources.center, sources.radius])))
+    axis_i = mi.Vector4f(*_dr_cols(np.column_stack([sources.axis, sources.intensity])))
     value = estimate_record(
-        mi.Vector4f(*_dr_cols(np.column_stack([sources.center[sid], sources.radius[sid]]))),
-        mi.Vector4f(*_dr_cols(np.column_stack([sources.axis[sid], sources.intensity[sid]]))),
-        jit(mi.UInt32, _flags(sources)[sid].astype(np.uint32)),
-        mi.Point3f(*_dr_cols(points[j_idx])), mi.Vector3f(*_dr_cols(normals[j_idx])),
+        dr.gather(mi.Vector4f, sphere, sid), dr.gather(mi.Vector4f, axis_i, sid),
+        dr.gather(mi.UInt32, jit(mi.UInt32, _flags(sources).astype(np.uint32)), sid),
+        dr.gather(mi.Point3f, vectors(points, mi.Point3f), j),
+        dr.gather(mi.Vector3f, vectors(normals, mi.Vector3f), j),
         mi.Bool(False), mi.Float(0.0))
     value = np.asarray(value, dtype=np.float64)
     mean = np.bincount(e_idx, weights=value, minlength=n_entries) / np.maximum(
