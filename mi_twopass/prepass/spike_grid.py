@@ -1020,8 +1020,51 @@ def _cell_boxes(bbox_min, h, dims, cells):
     return lo, lo + h
 
 
-def candidate_pairs(sources: Sources, box_lo, box_hi, influence: float, chunk=4096):
-    """Candidate (list, source) pairs of the bands (§4), list-major, sources ascending."""
+def candidate_pairs(sources: Sources, box_lo, box_hi, influence: float, chunk=1 << 24):
+    """Candidate (list, source) pairs of the bands (§4), list-major, sources ascending: every
+    source of BAND_ALL, and those of BAND_INFLUENCE whose influence region (intensity ≥
+    ``influence`` · d², d the distance from the cell's box to the source's sphere) meets the
+    cell. One Dr.Jit kernel over the (cell, source) pairs, ``chunk`` at most at a time, then
+    compressed, in float32 (:func:`_candidate_pairs_numpy`, the float64 reference, may
+    differ on a pair at the region's very edge). The numpy version it replaces took 1.1 s
+    with 1000 lights; sizes and offsets are opaque, so no kernel is compiled per scene."""
+    L, S = int(box_lo.shape[0]), int(sources.count)
+    if L == 0 or S == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    band = jit(mi.UInt32, np.asarray(sources.band, np.uint32))
+    sphere = mi.Vector4f(*_dr_cols(np.column_stack([sources.center, sources.radius])))
+    intensity = jit(mi.Float, np.asarray(sources.intensity, np.float32))
+    lo_t, hi_t = vectors(box_lo, mi.Point3f), vectors(box_hi, mi.Point3f)
+    S_o, infl = dr.opaque(mi.UInt32, S), dr.opaque(mi.Float, float(influence))
+    cells = max(1, int(chunk) // S)
+    out_l, out_s = [], []
+    for a in range(0, L, cells):  # chunks of cells (memory)
+        n = min(cells, L - a)
+        a_o = dr.opaque(mi.UInt32, a)
+        idx = dr.arange(mi.UInt32, n * S)
+        li = idx // S_o
+        si = idx - li * S_o
+        li += a_o
+        b = dr.gather(mi.UInt32, band, si)
+        sp = dr.gather(mi.Vector4f, sphere, si)
+        c = mi.Point3f(sp.x, sp.y, sp.z)
+        q = dr.clip(c, dr.gather(mi.Point3f, lo_t, li), dr.gather(mi.Point3f, hi_t, li))
+        d = dr.maximum(dr.norm(c - q) - sp.w, 0.0)
+        reach = (d <= 0) | (dr.gather(mi.Float, intensity, si) >= infl * d * d)
+        keep = (b == BAND_ALL) | ((b == BAND_INFLUENCE) & reach)
+        sel = dr.compress(keep)
+        if dr.width(sel) == 0:
+            continue
+        sel_l = sel // S_o
+        out_l.append(np.asarray(sel_l + a_o).astype(np.int64))
+        out_s.append(np.asarray(sel - sel_l * S_o).astype(np.int64))
+    if not out_l:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(out_l), np.concatenate(out_s)
+
+
+def _candidate_pairs_numpy(sources: Sources, box_lo, box_hi, influence: float, chunk=4096):
+    """numpy (float64) twin of :func:`candidate_pairs`, for tests."""
     band = sources.band
     all_ids = np.nonzero(band == BAND_ALL)[0]
     infl_ids = np.nonzero(band == BAND_INFLUENCE)[0]

@@ -368,3 +368,28 @@ def test_reservoir_sampling_follows_the_pmf(many_light_grid, defensive, support)
     exp = exp * (obs.sum() / exp.sum())  # float32 pmf: renormalise the last ulps
     _, pvalue = stats.chisquare(obs, exp)
     assert pvalue > 1e-3, (obs, exp)
+
+
+@pytest.mark.parametrize("chunk", [1 << 24, 1000])
+def test_candidate_pairs_on_the_device_are_the_float64_ones(chunk):
+    """The Dr.Jit candidate pairs (one kernel, compressed; in chunks of cells where
+    ``chunk`` pairs do not hold them all) equal the numpy float64 reference's, in its order:
+    list-major, sources ascending; every BAND_ALL source in every list, no BAND_IMPLICIT one."""
+    from types import SimpleNamespace
+    from mi_twopass.prepass.spike_grid import (BAND_ALL, BAND_IMPLICIT, BAND_INFLUENCE,
+                                               _candidate_pairs_numpy, candidate_pairs)
+    rng = np.random.default_rng(7)
+    S, L = 300, 200
+    band = rng.choice([BAND_IMPLICIT, BAND_INFLUENCE, BAND_INFLUENCE, BAND_ALL], S)
+    sources = SimpleNamespace(band=band, center=rng.uniform(-1, 1, (S, 3)),
+                              radius=rng.uniform(0.0, 0.05, S),
+                              intensity=rng.uniform(0.0, 2.0, S), count=S)
+    lo = rng.uniform(-1, 0.9, (L, 3))
+    hi = lo + 0.1
+    got = candidate_pairs(sources, lo, hi, 10.0, chunk=chunk)
+    ref = _candidate_pairs_numpy(sources, lo, hi, 10.0)
+    assert 0 < len(ref[0]) < L * S
+    np.testing.assert_array_equal(got[0], ref[0])
+    np.testing.assert_array_equal(got[1], ref[1])
+    assert not np.isin(got[1], np.flatnonzero(band == BAND_IMPLICIT)).any()
+    assert np.bincount(got[0], minlength=L).min() >= np.count_nonzero(band == BAND_ALL)
