@@ -511,18 +511,21 @@ def build_sources(scene, solution=None, vl_threshold=0.5, e_high_rel=4.0, e_low_
     patch_source[vl] = E + np.arange(V, dtype=np.uint32)
     src._tables = Tables(
         n_emitter_reg=n_reg, n_patch_slots=N + 1,
-        emitter_source=mi.UInt32(emitter_source), patch_source=mi.UInt32(patch_source),
+        emitter_source=jit(mi.UInt32, emitter_source), patch_source=jit(mi.UInt32, patch_source),
         center=_dr3(src.center, mi.Point3f), axis=_dr3(src.axis, mi.Vector3f),
         radius=jit(mi.Float, _pad(src.radius, np.float32)),
         intensity=jit(mi.Float, _pad(src.intensity, np.float32)),
-        infinite=mi.Bool(_pad(src.infinite, bool, False)),
-        # packed per-source records for estimate(): one 4-wide (packet) gather each
-        sphere=mi.Float(_packed4(src.center, src.radius)),
-        axis_intensity=mi.Float(_packed4(src.axis, src.intensity)),
+        infinite=jit(mi.Bool, _pad(src.infinite, bool, False)),
+        # packed per-source records for estimate(): one 4-wide (packet) gather each, which
+        # Dr.Jit emits only from an aligned buffer (host_arrays.jit): handed numpy's own
+        # buffer, the kernel was a packet load or four loads as the allocation fell, and was
+        # compiled again between prepass seeds (tests/prepass/test_kernel_reuse.py)
+        sphere=jit(mi.Float, _packed4(src.center, src.radius)),
+        axis_intensity=jit(mi.Float, _packed4(src.axis, src.intensity)),
         flags=jit(mi.UInt32, _pad(_flags(src), np.uint32)),
         in_delta=jit(mi.Bool, _pad(np.isin(np.arange(S), src.delta_ids), bool, False)),
         in_emitters=jit(mi.Bool, _pad(np.isin(np.arange(S), src.emitter_ids), bool, False)),
-        is_patch=mi.Bool(_pad(src.kind == KIND_PATCH, bool, False)),
+        is_patch=jit(mi.Bool, _pad(src.kind == KIND_PATCH, bool, False)),
         emitter_index=jit(mi.UInt32, _pad(np.maximum(src.emitter_index, 0), np.uint32)),
         patch_id=jit(mi.UInt32, _pad(src.patch_id, np.uint32, N)),
         delta_ids=jit(mi.UInt32, _pad(src.delta_ids, np.uint32, INVALID)),
@@ -1323,9 +1326,9 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
         source=jit(mi.UInt32, _pad(lists_s, np.uint32, INVALID)),
         g=jit(mi.Float, _pad(lists_g, np.float32)),
         # per-entry source records for the list sweep (intensity × g)
-        entry_sphere=mi.Float(_packed4(sources.center[lists_s], sources.radius[lists_s])),
-        entry_axis_gI=mi.Float(_packed4(sources.axis[lists_s],
-                                        sources.intensity[lists_s] * lists_g)),
+        entry_sphere=jit(mi.Float, _packed4(sources.center[lists_s], sources.radius[lists_s])),
+        entry_axis_gI=jit(mi.Float, _packed4(sources.axis[lists_s],
+                                             sources.intensity[lists_s] * lists_g)),
         entry_flags=jit(mi.UInt32, _pad(_flags(sources)[lists_s], np.uint32)),
         # the per-cell selection (cell_weights): entry probabilities, CDFs, list sums
         cell_prob=jit(mi.Float, _pad(prob, np.float32)), cell_cdf=jit(mi.Float, _pad(cdf, np.float32)),
