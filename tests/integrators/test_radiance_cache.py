@@ -370,7 +370,7 @@ def test_fake_gi_darkens_near_geometry():
     ({"alpha": -1.0}, "alpha=-1"), ({"alpha_rel": 0.0}, "alpha_rel=0"),
     ({"debug": "nope"}, "debug='nope'"), ({"max_points": 0}, "max_points=0"),
     ({"near_far": "x"}, "near_far='x'"), ({"lambda": 1e12}, "lambda=1e+12"),
-    ({"fake_gi": "no"}, "fake_gi='no'")])
+    ({"fake_gi": "no"}, "fake_gi='no'"), ({"near_merge_rel": -0.5}, "near_merge_rel=-0.5")])
 def test_bad_parameters_fail_at_load(props, message):
     """A bad value fails when the plugin is loaded, naming the parameter (Mitsuba's loader
     wraps the integrator's ValueError in a RuntimeError that quotes it)."""
