@@ -233,7 +233,7 @@ class _MeshCount:
         total = int((res * res).sum())
         if n_big == len(self.area):
             return total
-        vox = np.floor(self.rel[n_big:] * (1.0 / math.sqrt(a))).astype(np.int64)
+        vox = np.floor(self.rel[n_big:] / math.sqrt(a)).astype(np.int64)  # as _mesh_split
         np.clip(vox, 0, (1 << _VOXEL_BITS) - 1, out=vox)
         key = (((vox[:, 0] << _VOXEL_BITS) | vox[:, 1]) << _VOXEL_BITS | vox[:, 2]) << 3 \
             | self.nbin[n_big:]
@@ -256,17 +256,17 @@ def _count(geoms, a, origin, meshes=None):
     return total
 
 
-#: the target-area search stops once the patches fill this share of the budget
-_FILL = 0.98
-
-
 def _choose_target_area(geoms, max_patches, origin):
-    """The smallest target area a whose patch count fits the budget, to 0.5 % in a or 2 % in
-    the count (:data:`_FILL`): regula falsi on log count against log a (Illinois), the bracket
-    [lo, hi] always holding count(lo) > max_patches ≥ count(hi). The count of a triangle mesh
-    sorts a key per small face, so it costs what its faces do (0.1 s for 10^6): 28 counts of
-    a bisection took 4 s of the radiosity prepass of a 10^6-triangle mesh; this search makes
-    7–11 (the count falls about as 1/a, so the interpolation lands near the answer)."""
+    """Smallest target area a (geometric bisection, to 0.5 %) whose patch count fits the
+    budget. The count of a triangle mesh sorts a key per small face, so it costs what its faces
+    do; each mesh's faces are sorted by area once per search (:class:`_MeshCount`), which took
+    a count of a 10^6-triangle mesh from 0.15 to about 0.06 s.
+
+    The bisection's own steps are kept: a regula-falsi search (session 23, 9–11 counts instead
+    of 28, stopping once the count filled 98 % of the budget) lands on a target area a few per
+    cent away, and on scenes_xml/mixed_room.xml that layout took radiosity_gather's image mean
+    from 1.004 to 1.028 of path's (``check``): a bias that follows the patch layout, not yet
+    understood, which this search must not move."""
     meshes = {id(g): _MeshCount(g, origin) for g in geoms if g.kind == KIND_MESH}
     count = lambda a: _count(geoms, a, origin, meshes)  # noqa: E731
     total_area = sum(g.area for g in geoms)
@@ -280,32 +280,17 @@ def _choose_target_area(geoms, max_patches, origin):
                       stacklevel=3)
         return hi
     lo = total_area / max_patches / 16.0
-    c_lo = count(lo)
-    if c_lo <= max_patches:
+    if count(lo) <= max_patches:
         return lo
-    goal = math.log(max_patches + 0.5)
-    x_lo, x_hi = math.log(lo), math.log(hi)
-    f_lo, f_hi = math.log(c_lo) - goal, math.log(max(c_hi, 1)) - goal
-    side = 0
-    for _ in range(40):
-        if x_hi - x_lo < math.log(1.005) or c_hi >= _FILL * max_patches:
-            break
-        w = x_hi - x_lo
-        x = x_hi - f_hi * w / (f_hi - f_lo)
-        x = min(max(x, x_lo + 0.02 * w), x_hi - 0.02 * w)
-        c = count(math.exp(x))
-        f = math.log(max(c, 1)) - goal
-        if c <= max_patches:
-            x_hi, f_hi, c_hi = x, f, c
-            if side == 1:
-                f_lo *= 0.5
-            side = 1
+    for _ in range(24):
+        mid = math.sqrt(lo * hi)
+        if count(mid) <= max_patches:
+            hi = mid
         else:
-            x_lo, f_lo = x, f
-            if side == -1:
-                f_hi *= 0.5
-            side = -1
-    return math.exp(x_hi)
+            lo = mid
+        if hi / lo < 1.005:
+            break
+    return hi
 
 
 # ----------------------------------------------------------------------------------------------
