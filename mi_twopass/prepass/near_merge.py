@@ -34,16 +34,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..scene.patches import normal_bins
+
 #: voxel coordinates of the clustering grid are kept to this many bits per axis
 _BITS = 20
-#: normal bins of the cells' radiosities (:func:`_normal_bins`)
+#: normal bins of the cells' radiosities (:func:`~mi_twopass.scene.patches.normal_bins`)
 _BINS = 6
-
-
-def _normal_bins(normals):
-    """0…5: the dominant axis of each normal (n, 3) and its sign."""
-    axis = np.argmax(np.abs(normals), axis=1)
-    return 2 * axis + (normals[np.arange(len(normals)), axis] < 0)
 
 
 def _corner_ids(points):
@@ -126,7 +122,7 @@ def merge_small_triangles(verts, tri_normal, tri_B, size: float):
         return verts, tri_normal, tri_B, 0
     # each active cell's representative: the mean of its rim corners where it has any (a
     # mesh's open edge, where it meets a wall, stays where it is), else of all its corners
-    tri_bin = _normal_bins(tri_normal)
+    tri_bin = normal_bins(tri_normal)
     rim = _rim_corners(verts, tri_bin).ravel()
     flat = corner_cell.ravel()
     on = active[flat]
@@ -179,7 +175,7 @@ def merge_small_triangles(verts, tri_normal, tri_B, size: float):
     new_n = new_cross / length[:, None]
     # radiosity: a moved corner reads its cell in the triangle's normal bin, an unmoved one
     # (or one whose cell holds no small triangle of that bin) the triangle's own value
-    slot = cc_rep * _BINS + _normal_bins(new_n)[:, None]
+    slot = cc_rep * _BINS + normal_bins(new_n)[:, None]
     from_cell = mv & has_B[slot]
     corner_B = np.where(from_cell[:, :, None], cell_B[slot], tri_B[rep][:, None, :])
     new_B = corner_B.mean(axis=1)

@@ -189,6 +189,23 @@ def _grid_dims(g, a):
     return nu, max(1, int(round(cells / nu)))
 
 
+def normal_bins(normals) -> np.ndarray:
+    """0…5 per normal of ``normals`` (n, 3): its dominant axis and the sign along it. The
+    clusters of small faces (:func:`_cluster_keys`) and the near field's merged cells
+    (:mod:`~mi_twopass.prepass.near_merge`) keep the bins apart."""
+    normals = np.asarray(normals)
+    axis = np.argmax(np.abs(normals), axis=1)
+    return 2 * axis + (normals[np.arange(len(normals)), axis] < 0)
+
+
+def _cluster_keys(rel, h, nbin):
+    """int64 key of each small face's cluster: its voxel of side ``h`` (``rel``: the face
+    centroids less the grid's origin, (n, 3)) and its normal bin ``nbin``."""
+    vox = np.floor(rel / h).astype(np.int64)
+    np.clip(vox, 0, (1 << _VOXEL_BITS) - 1, out=vox)
+    return (((vox[:, 0] << _VOXEL_BITS) | vox[:, 1]) << _VOXEL_BITS | vox[:, 2]) << 3 | nbin
+
+
 def _mesh_split(g, a, origin):
     """Subdivision resolution of big faces and cluster ids of small ones at target area a."""
     big = g.face_area >= MERGE_FRACTION * a
@@ -196,13 +213,8 @@ def _mesh_split(g, a, origin):
     res[~big] = 0
     small = np.nonzero(~big)[0]
     if small.size:
-        h = math.sqrt(a)
-        vox = np.floor((g.face_centroid[small] - origin) / h).astype(np.int64)
-        vox = np.clip(vox, 0, (1 << _VOXEL_BITS) - 1)
-        n = g.face_normal[small]
-        axis = np.argmax(np.abs(n), axis=1)
-        nbin = 2 * axis + (n[np.arange(small.size), axis] < 0)
-        key = (((vox[:, 0] << _VOXEL_BITS) | vox[:, 1]) << _VOXEL_BITS | vox[:, 2]) << 3 | nbin
+        key = _cluster_keys(g.face_centroid[small] - origin, math.sqrt(a),
+                            normal_bins(g.face_normal[small]))
         _, cluster = np.unique(key, return_inverse=True)
         n_clusters = int(cluster.max()) + 1
     else:
@@ -221,9 +233,7 @@ class _MeshCount:
         self.area = g.face_area[order]
         self.neg_area = -self.area  # ascending, for searchsorted
         self.rel = g.face_centroid[order] - origin
-        n = g.face_normal[order]
-        axis = np.argmax(np.abs(n), axis=1)
-        self.nbin = 2 * axis + (n[np.arange(len(n)), axis] < 0)
+        self.nbin = normal_bins(g.face_normal[order])
 
     def front(self, a) -> int:
         """Patches of the mesh's front side at target area ``a`` (:func:`_mesh_split`'s count):
@@ -233,10 +243,7 @@ class _MeshCount:
         total = int((res * res).sum())
         if n_big == len(self.area):
             return total
-        vox = np.floor(self.rel[n_big:] / math.sqrt(a)).astype(np.int64)  # as _mesh_split
-        np.clip(vox, 0, (1 << _VOXEL_BITS) - 1, out=vox)
-        key = (((vox[:, 0] << _VOXEL_BITS) | vox[:, 1]) << _VOXEL_BITS | vox[:, 2]) << 3 \
-            | self.nbin[n_big:]
+        key = _cluster_keys(self.rel[n_big:], math.sqrt(a), self.nbin[n_big:])
         key.sort()
         return total + 1 + int(np.count_nonzero(key[1:] != key[:-1]))
 
