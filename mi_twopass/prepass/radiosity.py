@@ -677,6 +677,65 @@ FLUX_NOISE = 0.005
 MAX_PARTICLE_GROWTH = 8
 
 
+@dataclass
+class GuidePilot:
+    """The emission guide's pilot particles (:func:`guide_pilot`): per particle its cell and
+    its scores on the common scale of :mod:`.emission_guide` step 3 (``score``: W-weighted,
+    ``read`` and ``first``: :class:`~.emission_guide.CameraImportance`'s), the camera pass,
+    the cells and how many particles were traced."""
+
+    cells: object
+    camera: object
+    cell_of: np.ndarray
+    score: np.ndarray
+    read: np.ndarray
+    first: np.ndarray
+    traced: int
+
+
+def pilot_trace(scene, patches, elements, camera, guide, n, seed, bounds=None):
+    """``n`` particles drawn with ``guide``, traced without deposits: (cells, score, read,
+    first), the scores on :mod:`.emission_guide` step 3's common scale (× the guide's
+    probability of the particle's cell × ``n``)."""
+    _, _, result, _ = _trace_batch(scene, patches, n, 0, seed, n, DEFAULT_MAX_BOUNCES, elements,
+                                   guide=guide, importance=camera.hits, bounds=bounds,
+                                   deposit_flux=False, reads=camera)
+    scale = guide.pmf[result["cell"]] * n
+    zeros = np.zeros(len(result["cell"]))
+    return (result["cell"], result["score"] * scale, result.get("read_score", zeros) * scale,
+            result.get("first_score", zeros) * scale)
+
+
+def guide_pilot(scene, sensor, patches, elements=None, seed: int = 0) -> GuidePilot | None:
+    """The pilot of :func:`guide_emission`, in its two stages: every cell
+    (``emission_guide.PILOT_PER_CELL`` particles per cell on average), then the cells that
+    scored and their neighbours (:func:`emission_guide.focus_cells`). ``None`` where every
+    emitter is an area light, there is no sensor or the camera reads nothing."""
+    emitters = scene.emitters()
+    if sensor is None or not emitters or \
+            all(kind == "surface" for kind in emitter_kinds(scene)):
+        return None
+    receivers = elements if elements is not None else patches
+    camera = emission_guide.camera_importance(scene, sensor, receivers, seed)
+    if not camera.hits.sum() > 0:
+        return None
+    bounds = scene_bounds(scene)
+    cells = emission_guide.cells(scene)
+    first_n = max(emission_guide.PILOT_PER_CELL * cells.count, 1 << 13)
+    runs = [pilot_trace(scene, patches, elements, camera, emission_guide.uniform(cells),
+                        first_n, seed + _GUIDE_SEED, bounds)]
+    lit = emission_guide.focus_cells(cells, runs[0][0], runs[0][1])
+    traced = first_n
+    if lit.any():
+        focus_n = emission_guide.PILOT_FOCUS * int(lit.sum())
+        runs.append(pilot_trace(scene, patches, elements, camera,
+                                emission_guide.EmissionGuide(cells, lit.astype(np.float64)),
+                                focus_n, seed + _GUIDE_SEED + 1, bounds))
+        traced += focus_n
+    cell_of, score, read, first = (np.concatenate(parts) for parts in zip(*runs))
+    return GuidePilot(cells, camera, cell_of, score, read, first, traced)
+
+
 def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
     """The importance-driven emission of :mod:`mi_twopass.prepass.emission_guide` for ``scene``
     seen by ``sensor``: (guide, pilot particles, the relative standard deviation of the image's
@@ -684,53 +743,22 @@ def guide_emission(scene, sensor, patches, elements=None, seed: int = 0):
     :func:`emission_guide.image_noise`), or (None, pilot particles, 0.0) where every emitter is
     an area light, there is no sensor, the camera reads nothing the pilot's particles reach, or
     the guide would not divide the variance of the camera-weighted flux by
-    ``emission_guide.MIN_GAIN`` (scenes_xml/caustic.xml's sky: 1.8×). The pilot's two stages:
-    every cell, then the cells that scored and their neighbours
-    (:func:`emission_guide.focus_cells`)."""
-    emitters = scene.emitters()
-    if sensor is None or not emitters or \
-            all(kind == "surface" for kind in emitter_kinds(scene)):
+    ``emission_guide.MIN_GAIN`` (scenes_xml/caustic.xml's sky: 1.8×). The pilot:
+    :func:`guide_pilot`."""
+    pilot = guide_pilot(scene, sensor, patches, elements, seed)
+    if pilot is None:
         return None, 0, 0.0
-    receivers = elements if elements is not None else patches
-    camera = emission_guide.camera_importance(scene, sensor, receivers, seed)
-    if not camera.hits.sum() > 0:
-        return None, 0, 0.0
-    bounds = scene_bounds(scene)
-    cells = emission_guide.cells(scene)
-    cell_of, score, read, first, traced = [], [], [], [], 0
-
-    def run(pilot_guide, n, stage):
-        nonlocal traced
-        _, _, result, _ = _trace_batch(scene, patches, n, 0, seed + _GUIDE_SEED + stage, n,
-                                       DEFAULT_MAX_BOUNCES, elements, guide=pilot_guide,
-                                       importance=camera.hits, bounds=bounds,
-                                       deposit_flux=False, reads=camera)
-        cell_of.append(result["cell"])
-        # the common scale f·V_c: x the pilot's probability of the cell x its particle count
-        scale = pilot_guide.pmf[result["cell"]] * n
-        score.append(result["score"] * scale)
-        zeros = np.zeros(len(result["cell"]))
-        read.append(result.get("read_score", zeros) * scale)
-        first.append(result.get("first_score", zeros) * scale)
-        traced += n
-
-    run(emission_guide.uniform(cells),
-        max(emission_guide.PILOT_PER_CELL * cells.count, 1 << 13), 0)
-    lit = emission_guide.focus_cells(cells, cell_of[0], score[0])
-    if lit.any():
-        run(emission_guide.EmissionGuide(cells, lit.astype(np.float64)),
-            emission_guide.PILOT_FOCUS * int(lit.sum()), 1)
-    cell_of, score = np.concatenate(cell_of), np.concatenate(score)
-    read, first = np.concatenate(read), np.concatenate(first)
+    cells, cell_of, score = pilot.cells, pilot.cell_of, pilot.score
     guide = emission_guide.fitted(cells, cell_of, score)
     if guide is None:
-        return None, traced, 0.0
+        return None, pilot.traced, 0.0
     guided = emission_guide.predicted_noise(cells, guide.pmf, cell_of, score, 1)
     plain = emission_guide.predicted_noise(cells, cells.default / cells.default.sum(),
                                            cell_of, score, 1)
     if guided ** 2 * emission_guide.MIN_GAIN > plain ** 2:
-        return None, traced, 0.0  # Mitsuba's own emission is about as good: no guide
-    return guide, traced, emission_guide.image_noise(cells, guide.pmf, cell_of, read, first, 1)
+        return None, pilot.traced, 0.0  # Mitsuba's own emission is about as good: no guide
+    return guide, pilot.traced, emission_guide.image_noise(cells, guide.pmf, cell_of, pilot.read,
+                                                           pilot.first, 1)
 
 
 def guided_particles(n_particles: int, noise_per_particle: float) -> int:
