@@ -76,10 +76,10 @@ MAX_CELLS = 16384
 #: pilot particles per cell (mean), first stage, and per cell of the second stage's cells.
 #: A lit cell the first stage misses, and whose neighbours it misses too, keeps only the
 #: ``DEFENSIVE`` share: the particles drawn there carry up to 1/``DEFENSIVE`` times Mitsuba's
-#: own weight, and one such prepass in ten rendered heavy. With 4, scenes_xml/mixed_room.xml
+#: own weight, and about one prepass in eight rendered heavy. With 4, scenes_xml/mixed_room.xml
 #: (a sky seen through a window: clusters of its 6⁴ cells lit with probability ~1/30) drew
-#: it in 4 prepass seeds of 40: the true noise per particle of the fitted guide 3.7–4.1
-#: against a median of 2.3 (the pilot's own prediction 1.1–1.4 throughout), and seed 24301
+#: it in 5 prepass seeds of 40: the true noise per particle of the fitted guide 3.9–4.1
+#: against a median of 2.3 (the pilot's own prediction 1.0–1.4 throughout), and seed 24301
 #: at max_patches=1010 rendered 2.7 % bright (radiosity_gather, ``check``: 1.027, the 1 %
 #: bound broken). With 16: median 2.20, largest 2.98; many_lights 0.72 → 0.59, window_interior
 #: unchanged (4.9); the pilot's cost is the same within noise (0.08 s, 0.04–0.05 s at 256²;
