@@ -171,14 +171,26 @@ class Composition:
         return self.indirect != "path" or self.caustics != "off"
 
 
+#: the radiosity budget of twopass's row of spike lists with the radiance cache: spike_gather's
+#: own (``SpikeGatherIntegrator.RADIOSITY_DEFAULTS``), so that it reads the solve the other
+#: spike-list rows built (radiosity.build's memo) instead of solving again with the cache's
+#: default (2048 patches x 256 particles, 4 elements): mixed_room at 256², 256 spp, pilot and
+#: prepasses 2.66-2.83 -> 2.08-2.16 s, the render 7.45-7.77 -> 6.93-7.06 s; window_interior
+#: 1.85-1.88 -> 1.51-1.59 s (docs/results/twopass-shared-solve-2026-11-28). The row of the cache
+#: alone keeps the cache's default: where it is built without spike lists (one emitter) there is
+#: no solve to share, and with half the particles it won the Cornell box's 512-spp point on a
+#: bias its test did not see (equal-time 0.98 against 2.09 with the radiosity gather)
+CACHE_RADIOSITY = (("max_patches", 4096), ("particles_per_patch", 64),
+                   ("elements_per_patch", 4))
+
 COMPOSITIONS = (
     Composition("emitter", "path", "off", "path"),
     Composition("spike", "path", "off", "spike_gather", (("r_thresh_rel", 1e9),), ("direct",)),
     Composition("spike", "radiosity", "off", "spike_gather", (), ("direct", "indirect")),
     Composition("emitter", "radiosity", "off", "radiosity_gather", (), ("indirect",)),
     Composition("emitter", "cache", "off", "radiance_cache", (), ("indirect",)),
-    Composition("spike", "cache", "off", "radiance_cache", (("direct", "spike"),),
-                ("direct", "indirect")),
+    Composition("spike", "cache", "off", "radiance_cache",
+                (("direct", "spike"),) + CACHE_RADIOSITY, ("direct", "indirect")),
     Composition("emitter", "rex", "rex", "rex", (), ("direct", "indirect", "caustic")),
 )
 

@@ -314,10 +314,11 @@ def test_a_render_in_passes_is_chosen_for_its_whole_spp(tiny_scene_file, tmp_pat
 
 
 def test_candidates_share_one_radiosity_solve():
-    """The two spike_gather rows (spike lists with the far gather, and with paths) ask for the
-    same radiosity budget: within one twopass prepass the first solves, the second takes its
-    solve (radiosity.build's memo); radiosity_gather, whose budget differs, solves its own; the
-    memo is emptied once the choice is made."""
+    """The two spike_gather rows (spike lists with the far gather, and with paths) and the row
+    of spike lists with the radiance cache (``cost.CACHE_RADIOSITY``) ask for the same
+    radiosity budget: within one twopass prepass the first solves, the others take its solve
+    (radiosity.build's memo); radiosity_gather and the cache alone, whose budgets differ, solve
+    their own; the memo is emptied once the choice is made."""
     d = hs.box()
     d["light2"] = {"type": "rectangle", "emitter": {"type": "area",
                                                     "radiance": hs.rgb(4.0)},
@@ -334,6 +335,11 @@ def test_candidates_share_one_radiosity_solve():
     assert sorted([a._prepass_stats["radiosity_reused"], b._prepass_stats["radiosity_reused"]]) \
         == [False, True]
     assert tp.candidate(gather).structure.solution is not a.structure.solution
+    spike_cache, cache = (next(c for c in cost.COMPOSITIONS if c.plugin == "radiance_cache"
+                               and c.direct == direct) for direct in ("spike", "emitter"))
+    assert {spike_cache.name, cache.name} <= set(tp.stats["twopass_candidates"]), tp.stats
+    assert tp.candidate(spike_cache).structure.solution is a.structure.solution
+    assert tp.candidate(cache).structure.solution is not a.structure.solution
     assert len(tp._radiosity_memo) == 0
 
 
