@@ -12,7 +12,7 @@ def test_every_forced_combination_either_names_rows_or_fails_naming_the_choices(
     assert [c.plugin for c in cost.matching(direct="spike")] == ["spike_gather", "spike_gather",
                                                                  "radiance_cache"]
     assert [c.props for c in cost.matching(direct="spike", indirect="cache")] == [
-        (("direct", "spike"),)]
+        (("direct", "spike"),) + cost.CACHE_RADIOSITY]
     assert [c.plugin for c in cost.matching(caustics="rex")] == ["rex"]
     assert len(cost.matching()) == len(cost.COMPOSITIONS)
     with pytest.raises(ValueError, match="no composition has direct='spike', indirect='rex'"):
