@@ -212,8 +212,8 @@ class TwoPassChooser(TwoPassIntegrator):
     def prepass(self, scene, seed):
         """The pilot and the structures that may pay: :func:`mi_twopass.compose.choose.choose`.
         The candidates share their radiosity solves within it (one solve where spike_gather,
-        radiosity_gather and radiance_cache ask for the same budget: the radiance-cache rows
-        ask for spike_gather's, ``cost.CACHE_RADIOSITY``)."""
+        radiosity_gather and radiance_cache ask for the same budget: the row of spike lists
+        with the radiance cache asks for spike_gather's, ``cost.CACHE_RADIOSITY``)."""
         self._radiosity_memo.clear()
         try:
             return choose(scene, self.prepass_sensor, seed, self._render_spp, self.allowed,
