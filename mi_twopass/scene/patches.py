@@ -270,10 +270,11 @@ def _choose_target_area(geoms, max_patches, origin):
     a count of a 10^6-triangle mesh from 0.15 to about 0.06 s.
 
     The bisection's own steps are kept: a regula-falsi search (session 23, 9–11 counts instead
-    of 28, stopping once the count filled 98 % of the budget) lands on a target area a few per
-    cent away, and on scenes_xml/mixed_room.xml that layout took radiosity_gather's image mean
-    from 1.004 to 1.028 of path's (``check``): a bias that follows the patch layout, not yet
-    understood, which this search must not move."""
+    of 28, stopping once the count filled 98 % of the budget) landed on a target area a few per
+    cent away, and on scenes_xml/mixed_room.xml that layout's prepass at ``check``'s seed read
+    1.028 of path's. Session 24 found the cause outside the patches: the emission guide's pilot
+    had missed a cluster of the sky's cells, a heavy prepass about one seed in eight whatever
+    the layout (``emission_guide.PILOT_PER_CELL``, docs/results/guide-pilot-2026-11-28)."""
     meshes = {id(g): _MeshCount(g, origin) for g in geoms if g.kind == KIND_MESH}
     count = lambda a: _count(geoms, a, origin, meshes)  # noqa: E731
     total_area = sum(g.area for g in geoms)
