@@ -29,6 +29,8 @@ from mi_twopass.prepass import radiosity as R
 from mi_twopass.scene.patches import build_patches, scene_shapes
 from mi_twopass.scenefile import load_scene
 
+from guide_noise import truth  # noqa: E402  (tools/ is the script's own directory)
+
 BATCH = 1 << 18
 
 
@@ -44,19 +46,6 @@ def solve_scores(scene, patches, elements, camera, guide, n, seed):
                                       deposit_flux=False, reads=camera)
         cells.append(res["cell"])
         reads.append(res["read_score"])
-    return np.concatenate(cells), np.concatenate(reads)
-
-
-def scored(scene, patches, elements, camera, guide, n, seed):
-    """(cell, read score) of ``n`` particles drawn with ``guide``, in batches, the scores on
-    one scale (each batch's × its share of ``n``)."""
-    cells, reads = [], []
-    for k, first in enumerate(range(0, n, BATCH)):
-        m = min(BATCH, n - first)
-        c, _, read, _ = R.pilot_trace(scene, patches, elements, camera, guide, m,
-                                      seed + 7919 * k)
-        cells.append(c)
-        reads.append(read * (m / n))
     return np.concatenate(cells), np.concatenate(reads)
 
 
@@ -88,7 +77,7 @@ def main():
     print(f"{n} solve particles; largest shares of the camera-read flux: "
           + ", ".join(f"{read[i] / read.sum():.4f} (cell {cell[i]}, P {guide.pmf[cell[i]]:.2e},"
                       f" Mitsuba's {default[cell[i]]:.2e})" for i in top))
-    tc, tr = scored(scene, patches, elements, P.camera, EG.uniform(C), 1 << a.truth, 977 + a.seed)
+    tc, tr, _ = truth(scene, patches, elements, P.camera, C, 1 << a.truth, 977 + a.seed)
     count = np.bincount(tc, minlength=C.count)
     ms2 = np.bincount(tc, weights=(tr * (1 << a.truth) / C.count) ** 2,
                       minlength=C.count) / np.maximum(count, 1)
