@@ -17,9 +17,8 @@ import numpy as np
 
 import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
 from mi_twopass.compose import cost
-from mi_twopass.compose.choose import path_sum_estimator
-from mi_twopass.compose.pilot import (RUNS, PilotSettings, choose_pixels, pilot, pixel_means,
-                                      relative_variance, samples_array)
+from mi_twopass.compose.choose import path_pilot
+from mi_twopass.compose.pilot import PilotSettings, choose_pixels, pixel_means, relative_variance
 from mi_twopass.evaluation.metrics import RELMSE_EPS
 from mi_twopass.scenefile import load_scene, scene_label
 
@@ -53,11 +52,7 @@ def main():
         sensor = scene.sensors()[0]
         path_integ = mi.load_dict({"type": "twopass"}).candidate(cost.COMPOSITIONS[0])
         pixels = choose_pixels(sensor, settings.pixels, a.seed)
-        parts_out = []
-        run = pilot(scene, sensor, pixels, settings, path_sum_estimator(path_integ, parts_out),
-                    a.seed)
-        parts = [np.concatenate([samples_array(p[k], pixels, r * settings.samples)
-                                 for p, r in zip(parts_out, RUNS)], axis=1) for k in range(3)]
+        run, parts = path_pilot(scene, sensor, pixels, settings, path_integ, a.seed)
         ref = pixel_means(run.values)
         cells = [tail_figures(v, ref) for v in
                  (run.values, parts[0], parts[1], parts[2], parts[1] + parts[2])]

@@ -18,7 +18,7 @@ from ..evaluation.metrics import BLOCK
 from ..scene.lambertian import is_lambertian
 from . import cost
 from .unsampled import WARN_SHARE, unsampled_radiance
-from .pilot import (RUNS, PilotSettings, choose_blocks, choose_pixels, path_reference, pilot,
+from .pilot import (CALLS, PilotSettings, choose_blocks, choose_pixels, path_reference, pilot,
                     pilot_samples, pixel_count, pixel_means, probe_render, relative_variance,
                     run_samples, samples_array)
 
@@ -186,6 +186,15 @@ def path_sum_estimator(path_integ, parts_out=None):
     return estimate
 
 
+def path_pilot(scene, sensor, pixels, settings: PilotSettings, path_integ, seed: int):
+    """path's pilot (:func:`~mi_twopass.compose.pilot.pilot` of :func:`path_sum_estimator`)
+    and its samples split into parts: ``(PilotRun, [direct, caustic, indirect])``, each part
+    an array (pixels, samples, 3) that sums to the run's values."""
+    parts_out = []
+    run = pilot(scene, sensor, pixels, settings, path_sum_estimator(path_integ, parts_out), seed)
+    return run, [samples_array(parts_out[0][k], pixels, settings.samples) for k in range(3)]
+
+
 def traits(scene, max_depth) -> cost.SceneTraits:
     """What :func:`cost.structural_reason` reads of ``scene``: emitter count, whether any
     surface is Lambertian, the depth bound."""
@@ -269,7 +278,7 @@ def probe_gate(scene, sensor, seed: int, spp: int, allowed, candidate,
     path_integ = candidate(path_row)
     probed = probe_render(scene, sensor, path_integ, seed + _PROBE_SEED)
     dear = cost.too_dear_in_seconds(probed, spp, pilot_samples(settings, pixels),
-                                    pixels.film_pixels, len(RUNS), budget_factor)
+                                    pixels.film_pixels, CALLS, budget_factor)
     if dear is None:
         return None, probed
     decision = cost.Decision(chosen=path_row, spp=spp,
@@ -335,12 +344,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     film_pixels = pixels.film_pixels
     path_row = cost.COMPOSITIONS[0]
     path_integ = candidate(path_row)
-    parts_out = []
-    path_run = pilot(scene, sensor, pixels, settings, path_sum_estimator(path_integ, parts_out),
-                     seed)
-    parts = [np.concatenate([samples_array(p[k], pixels, r * settings.samples)
-                             for p, r in zip(parts_out, RUNS)], axis=1)
-             for k in range(3)]
+    path_run, parts = path_pilot(scene, sensor, pixels, settings, path_integ, seed)
     ref = pixel_means(path_run.values)
     variance = cost.VarianceParts(
         total=relative_variance(path_run.values, ref),
@@ -487,5 +491,5 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
 
 
 __all__ = ["Choice", "backend_name", "candidate_estimator", "check_bias", "choose", "fit_frozen",
-           "path_sum_estimator", "path_without_pilot", "probe_gate", "sample_gates", "traits",
-           "unsampled_share"]
+           "path_pilot", "path_sum_estimator", "path_without_pilot", "probe_gate", "sample_gates",
+           "traits", "unsampled_share"]

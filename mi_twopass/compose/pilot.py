@@ -8,21 +8,22 @@ candidate's ``sample`` exactly as its render would trace them.
 
 Cost per sample. A Dr.Jit call costs a fixed part (tracing the loop in Python, looking up the
 compiled kernel, launching it) plus a part per lane, which is what a render's cost per sample
-is made of. The pilot runs the same pixels twice, with M and then 8M samples each, and takes
-the per-lane part from Dr.Jit's kernel history: the execution time of the call's kernels,
-which leaves out the Python tracing, the launch and any compilation, over its lanes, the
-smaller of the two runs' (the minimum keeps a hiccup of a busy machine out); a full-film sample
-costs that × film pixels. The fixed part is not small: tracing a loop that calls every
-emitter's sampling code grows with the emitters, and at 256² it was 60 % of a 4M run on
-many_lights (0.025 of 0.042 s: a pilot that divided wall time by lanes put path at 0.050 s per
-sample where its renders take 0.0146). Until session 19 the pilot timed M, 4M and 4M runs and
-one of 16 pixels × 1 sample for the fixed part, subtracted from the faster 4M run: the same
-per-lane cost within a few per cent on the office (path 5.07e-7 s against 5.0–5.1e-7 now, its
-render's slope 4.96e-7), steadier on many_lights (1.7–2.7e-7 against 2.2–2.3e-7, the render's
-1.9e-7), in two calls instead of four: path's pilot 0.107 → 0.090 s on the office, 0.16 →
-0.10 s on many_lights (ad hoc, session 19: docs/results/twopass-pilot-pixels-2026-11-27).
+is made of. The pilot traces its samples in one call and takes the per-lane part from Dr.Jit's
+kernel history: the execution time of the call's kernels, which leaves out the Python tracing,
+the launch and any compilation, over its lanes; a full-film sample costs that × film pixels.
+The fixed part is not small: tracing a loop that calls every emitter's sampling code grows with
+the emitters, and at 256² it was 60 % of a 4M run on many_lights (0.025 of 0.042 s: a pilot
+that divided wall time by lanes put path at 0.050 s per sample where its renders take 0.0146).
+Until session 19 the pilot timed M, 4M and 4M runs and one of 16 pixels × 1 sample for the
+fixed part, subtracted from the faster 4M run; from session 19 to 24 it ran M/9 and 8M/9 and
+took the smaller per-lane time of the two. The larger run set it almost always (the small one's
+lanes cost more: thread start-up), and on many_lights the second call's tracing and code
+generation (about 0.04 s per candidate) was a third of the pilot's time. Since session 25 one
+call traces all M = 144 samples (:data:`CALLS`): twopass's pilot went 0.36 → 0.26 s on
+many_lights at 256², 256 spp, and 0.245 → 0.218 s on window_interior at 64 spp, for the same
+choices (``tools/pilot_timing.py``).
 
-Relative variance. For pixel p, channel k, the sample variance s²_pk of the 9M samples, over
+Relative variance. For pixel p, channel k, the sample variance s²_pk of the M samples, over
 the squared pixel value R_pk of a reference shared by all candidates, with relMSE's ε
 (:data:`mi_twopass.evaluation.metrics.RELMSE_EPS`)::
 
@@ -53,11 +54,11 @@ _SALT_BLOCKS = 0xB10C
 
 @dataclass(frozen=True)
 class PilotSettings:
-    """Pixels drawn from the film and samples per pixel of the first of the two runs (the
-    second takes 8× as many). Defaults: 1024 pixels × (16 + 128) samples."""
+    """Pixels drawn from the film and camera samples per pixel, traced in one call. Defaults:
+    1024 pixels × 144 samples."""
 
     pixels: int = 1024
-    samples: int = 16
+    samples: int = 144
 
 
 @dataclass
@@ -91,7 +92,7 @@ def pixel_count(settings: PilotSettings, spp: int, film_pixels: int) -> int:
     render's, down to :data:`MIN_PIXELS`. The gates before the pilot (``cost.pilot_too_dear``)
     weigh the full ``settings.pixels``: whether a pilot can pay is asked of the pilot as
     designed, how large it need be of the render it decides."""
-    per_pixel = settings.samples * sum(RUNS)
+    per_pixel = settings.samples
     fit = int(PIXEL_SHARE * max(spp, 1) * film_pixels / per_pixel)
     return int(min(settings.pixels, max(fit, MIN_PIXELS)))
 
@@ -177,13 +178,13 @@ class PilotRun:
         return self.seconds_per_lane * film_pixels
 
 
-#: a pilot's runs, in multiples of ``PilotSettings.samples`` per pixel (:func:`pilot`)
-RUNS = (1, 8)
+#: Dr.Jit calls a candidate's pilot makes, each paying the fixed part of a call (:func:`pilot`)
+CALLS = 1
 
 
 def pilot_samples(settings: PilotSettings, pixels: PilotPixels) -> int:
-    """The camera samples one candidate's pilot traces: its pixels × (M + 8M)."""
-    return len(pixels.index) * settings.samples * sum(RUNS)
+    """The camera samples one candidate's pilot traces: its pixels × samples."""
+    return len(pixels.index) * settings.samples
 
 
 def with_kernel_history(call):
@@ -208,17 +209,14 @@ def timed_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, s
 
 
 def pilot(scene, sensor, pixels: PilotPixels, settings: PilotSettings, estimator, seed: int):
-    """Run ``estimator`` with M and 8M samples per pixel; the cost per lane is the smaller of
-    the two runs' kernel execution time over their lanes (module docstring) →
+    """Run ``estimator`` with ``settings.samples`` samples per pixel in one call; the cost per
+    lane is its kernels' execution time over its lanes (module docstring) →
     :class:`PilotRun`."""
-    m = settings.samples
-    runs = [timed_samples(scene, sensor, pixels, k * m, estimator, seed + i)
-            for i, k in enumerate(RUNS)]
-    per_lane = min(executing / (len(pixels.index) * k * m)
-                   for (_, _, executing), k in zip(runs, RUNS))
-    return PilotRun(values=np.concatenate([v for v, _, _ in runs], axis=1),
-                    seconds_per_lane=per_lane, seconds=sum(t for _, t, _ in runs),
-                    lanes=pilot_samples(settings, pixels))
+    lanes = pilot_samples(settings, pixels)
+    values, seconds, executing = timed_samples(scene, sensor, pixels, settings.samples,
+                                               estimator, seed)
+    return PilotRun(values=values, seconds_per_lane=executing / max(lanes, 1), seconds=seconds,
+                    lanes=lanes)
 
 
 def probe_render(scene, sensor, integ, seed: int):

@@ -26,13 +26,13 @@ def test_pilot_of_a_constant_estimator_has_zero_variance_and_positive_cost(tiny_
     scene = mi.load_file(tiny_scene_file)
     sensor = scene.sensors()[0]
     px = pl.choose_pixels(sensor, 64, seed=1)
-    run = pl.pilot(scene, sensor, px, pl.PilotSettings(pixels=64, samples=4),
+    run = pl.pilot(scene, sensor, px, pl.PilotSettings(pixels=64, samples=36),
                    lambda s, sampler, ray, active: mi.Spectrum(0.25), seed=0)
-    assert run.values.shape == (64, 4 + 16 + 16, 3)
+    assert run.values.shape == (64, 36, 3)
     assert np.allclose(run.values, 0.25)  # box filter, unit importance weights
     assert pl.relative_variance(run.values, pl.pixel_means(run.values)) == pytest.approx(0.0)
     assert run.seconds_per_lane > 0
-    assert run.lanes == pl.pilot_samples(pl.PilotSettings(pixels=64, samples=4), px) == 64 * 36
+    assert run.lanes == pl.pilot_samples(pl.PilotSettings(pixels=64, samples=36), px) == 64 * 36
 
 
 def test_cost_per_sample_leaves_the_fixed_part_of_a_call_out(tiny_scene_file):
@@ -44,14 +44,14 @@ def test_cost_per_sample_leaves_the_fixed_part_of_a_call_out(tiny_scene_file):
     scene = mi.load_file(tiny_scene_file)
     sensor = scene.sensors()[0]
     px = pl.choose_pixels(sensor, 64, seed=1)
-    settings = pl.PilotSettings(pixels=64, samples=4)
+    settings = pl.PilotSettings(pixels=64, samples=36)
 
     def slow_to_trace(s, sampler, ray, active):
         time.sleep(0.05)
         return mi.Spectrum(0.25)
 
     run = pl.pilot(scene, sensor, px, settings, slow_to_trace, seed=0)
-    lanes = 64 * 4 * 8  # the larger run
+    lanes = 64 * 36
     assert run.seconds_per_lane * lanes < 0.3 * 0.05
     assert run.seconds_per_lane > 0
 
@@ -122,12 +122,12 @@ def test_a_short_render_gets_a_smaller_pilot_never_below_the_floor():
     """pixel_count: the settings' pixels where their 144 samples each are at most PIXEL_SHARE
     of the render's samples; fewer for a short render, down to MIN_PIXELS; never more than the
     settings ask for."""
-    s = pl.PilotSettings(pixels=1024, samples=16)
-    per_pixel = 16 * sum(pl.RUNS)
+    s = pl.PilotSettings(pixels=1024, samples=144)
+    per_pixel = 144
     film = 256 * 256
     assert pl.pixel_count(s, 256, film) == 1024
     spp = 16
     assert pl.pixel_count(s, spp, film) == int(pl.PIXEL_SHARE * spp * film / per_pixel) < 1024
     assert pl.pixel_count(s, spp, film) * per_pixel <= pl.PIXEL_SHARE * spp * film
     assert pl.pixel_count(s, 1, film) == pl.MIN_PIXELS
-    assert pl.pixel_count(pl.PilotSettings(pixels=64, samples=16), 1, film) == 64
+    assert pl.pixel_count(pl.PilotSettings(pixels=64, samples=144), 1, film) == 64
