@@ -339,7 +339,7 @@ class LeafCells:
         margin = 1e-5 * (float(np.abs(p).max()) + alpha) + 1e-4 * alpha
         leaves = np.flatnonzero(near.tri >= 0)  # pre-order: the root walk's order
         rank, cid = _leaf_cell_pairs(near, leaves, occ.ravel(), lo, cell, res, alpha, margin)
-        order = np.argsort(cid, kind="stable")  # per cell; leaves ascending within (lane order)
+        order = _stable_order(cid)  # per cell; leaves ascending within (lane order)
         cid, rank = cid[order], rank[order]
         C = int(np.prod(res))
         count = np.bincount(cid, minlength=C).astype(np.int64)
@@ -467,7 +467,7 @@ class PlaneLists:
         unit = np.zeros((len(normals_u), 3))
         np.add.at(unit, k_of, normal)
         unit /= np.linalg.norm(unit, axis=1, keepdims=True)
-        top = np.einsum("tvj,kj->tkv", near.verts, unit).max(axis=2)  # (T, K)
+        top = (near.verts @ unit.T).max(axis=1)  # (T, K)
         pl = pairs[entry, 1]
         h = top[near.tri[listed[idx]], k_of[pl]] - offset[pl]
         keep = h > PLANE_HEIGHT_EPS * alpha
@@ -570,6 +570,17 @@ def _leaf_cell_pairs(near, leaves, occupied, lo, cell, res, alpha, margin):
     return np.asarray(li).astype(np.int64), np.asarray(cid).astype(np.int64)
 
 
+def _stable_order(keys):
+    """``np.argsort(keys, kind="stable")`` of non-negative integer ``keys`` below 2³², as two
+    stable radix passes over 16-bit halves (numpy sorts 16-bit keys by radix; wider ones by
+    timsort): window_interior's 0.69 M (leaf, cell) pairs at 256² in 11 ms instead of 17."""
+    keys = np.asarray(keys, dtype=np.int64)
+    if keys.size and int(keys.max()) >= 1 << 32:
+        return np.argsort(keys, kind="stable")
+    low = np.argsort((keys & 0xFFFF).astype(np.uint16), kind="stable")
+    return low[np.argsort((keys[low] >> 16).astype(np.uint16), kind="stable")]
+
+
 def _culled(x, n, abs_n, c, h, cc, reach):
     """The walk's cull test of a node (box centre ``c``, half-extent ``h``, centroid sphere
     centre ``cc``) at x with normal n (``abs_n`` = |n|): no triangle centroid within ``reach``
@@ -610,6 +621,10 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     verts, tri_normal, tri_B, tri_area = verts[keep], tri_normal[keep], tri_B[keep], tri_area[keep]
     T = len(verts)
     centroid = verts.mean(axis=1)
+    # each axis's centroid coordinates as dense ranks (ties equal): one stable integer sort per
+    # level orders a segment as sorting (segment, coordinate) would, ties kept in place
+    rank = np.stack([np.unique(centroid[:, a], return_inverse=True)[1].reshape(-1)
+                     for a in range(3)]) if T else np.zeros((3, 0), np.int64)
     M = max(0, 2 * T - 1)
     center = np.zeros((M, 3)); radius = np.zeros(M); area = np.zeros(M)
     B = np.zeros((M, 3)); normal = np.zeros((M, 3))
@@ -641,8 +656,8 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
         cts = centroid[ids]
         first = n_seg.cumsum() - n_seg
         extent = np.maximum.reduceat(cts, first, axis=0) - np.minimum.reduceat(cts, first, axis=0)
-        key = cts[np.arange(len(ids)), np.argmax(extent, axis=1)[seg]]
-        perm[at] = ids[np.lexsort((key, seg))]  # the median split along the longest axis
+        key = rank[np.argmax(extent, axis=1)[seg], ids]
+        perm[at] = ids[np.argsort(seg * T + key, kind="stable")]  # median split, longest axis
         n_left = n_seg // 2
         levels.append((node, n_left))
         mid = start + n_left
@@ -653,9 +668,11 @@ def build_near_field(verts, tri_normal, tri_B, points=None, alpha=None,
     t = tri[lf]
     lo, hi = np.zeros((M, 3)), np.zeros((M, 3))
     clo, chi = np.zeros((M, 3)), np.zeros((M, 3))
-    lo[lf], hi[lf] = verts[t].min(axis=1), verts[t].max(axis=1)
+    vt = verts[t]
+    lo[lf] = np.minimum(np.minimum(vt[:, 0], vt[:, 1]), vt[:, 2])
+    hi[lf] = np.maximum(np.maximum(vt[:, 0], vt[:, 1]), vt[:, 2])
     center[lf] = 0.5 * (lo[lf] + hi[lf])
-    radius[lf] = np.sqrt(((verts[t] - center[lf][:, None, :]) ** 2).sum(-1).max(axis=1))
+    radius[lf] = np.sqrt(((vt - center[lf][:, None, :]) ** 2).sum(-1).max(axis=1))
     clo[lf] = chi[lf] = ccenter[lf] = centroid[t]
     area[lf], B[lf], normal[lf] = tri_area[t], tri_B[t], tri_normal[t]
     # bottom-up: each inner node from its two children (a deeper level, done first)

@@ -6,6 +6,7 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.form_factor import polygon_form_factor
+from mi_twopass.prepass import near_field as near_field_module
 from mi_twopass.prepass.near_field import (PLANE_MIN_POINTS, build_near_field,
                                            correction_numpy, split_near_triangles)
 
@@ -373,3 +374,36 @@ def test_cell_lists_with_no_leaf_in_reach_are_empty_and_the_walk_still_runs():
     assert nf.cells.entries == 0
     got, _ = run(nf, pts, np.tile([0.0, 0.0, -1.0], (2, 1)), np.zeros((2, 3)), 0.3)
     assert np.all(got == 0)
+
+
+def test_stable_order_is_numpys_stable_argsort():
+    """The cell lists' two 16-bit radix passes order (leaf, cell) pairs exactly as a stable
+    argsort: by key, ties in their input order (the root walk's leaf order)."""
+    rng = np.random.default_rng(3)
+    for high in (40, 1 << 20, (1 << 32) - 1, 1 << 40):  # ties, both halves, the fallback
+        keys = rng.integers(0, high, 5000)
+        assert np.array_equal(near_field_module._stable_order(keys), np.argsort(keys, kind="stable"))
+    assert near_field_module._stable_order(np.zeros(0, np.int64)).size == 0
+
+
+def test_every_inner_node_splits_its_triangles_at_the_median_of_its_longest_axis():
+    """The top-down sweep's integer ranks must split as sorting by the centroid coordinate
+    would, ties (a grid's shared coordinates) included: each inner node's left child holds
+    the n // 2 triangles lowest along the node's longest centroid extent."""
+    verts = np.concatenate([grid_plane(6), grid_plane(5, z=0.5), grid_plane(3, size=1.0, z=1.0)])
+    nf = build_near_field(verts, normals_of(verts), np.ones((len(verts), 3)))
+    centroid = nf.verts.mean(axis=1)
+
+    def subtree(node):
+        return [int(t) for t in nf.tri[node:nf.skip[node]] if t >= 0]
+
+    inner = np.flatnonzero(nf.tri < 0)
+    assert len(inner) == len(nf.verts) - 1
+    for node in inner:
+        tris = subtree(node)
+        left = subtree(node + 1)
+        right = [t for t in tris if t not in set(left)]
+        assert len(left) == len(tris) // 2
+        c = centroid[tris]
+        axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+        assert centroid[left, axis].max() <= centroid[right, axis].min()
