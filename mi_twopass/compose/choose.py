@@ -18,9 +18,9 @@ from ..evaluation.metrics import BLOCK
 from ..scene.lambertian import is_lambertian
 from . import cost
 from .unsampled import WARN_SHARE, unsampled_radiance
-from .pilot import (CALLS, PilotSettings, choose_blocks, choose_pixels, path_reference, pilot,
-                    pilot_samples, pixel_count, pixel_means, probe_render, relative_variance,
-                    run_samples, samples_array)
+from .pilot import (CALLS, PilotSettings, choose_blocks, choose_pixels, join_samples,
+                    path_reference, pilot, pilot_samples, pixel_count, pixel_means, probe_render,
+                    relative_variance, run_samples, samples_array)
 
 
 class Choice:
@@ -101,8 +101,8 @@ def check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, dec
                                       candidate_estimator(integ),
                                       seed + _CHECK_SEEDS + n_runs)[0])
         n_runs += 1
-        bias = cost.bias_squared(np.concatenate([run.values, *more[name]], axis=1),
-                                 np.concatenate([path_run.values, *path_more], axis=1))
+        bias = cost.bias_squared(join_samples([run.values, *more[name]]),
+                                 join_samples([path_run.values, *path_more]))
         found = bias.raw > cost.CHECK_SIGMAS * bias.se
         m.bias2, m.bias_se = (bias.raw if found else 0.0), bias.se
         checks.append((total, bias.raw, bias.se, "counted" if found else "below the limit"))

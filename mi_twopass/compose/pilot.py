@@ -157,10 +157,21 @@ def run_samples(scene, sensor, pixels: PilotPixels, samples: int, estimator, see
 
 
 def samples_array(spectrum, pixels: PilotPixels, samples: int) -> np.ndarray:
-    """A pilot's RGB values (sample-minor lanes) as an array (pixels, samples, 3)."""
-    arr = np.stack([np.asarray(spectrum.x), np.asarray(spectrum.y), np.asarray(spectrum.z)],
-                   axis=-1)
-    return arr.reshape(len(pixels.index), samples, 3)
+    """A pilot's RGB values (sample-minor lanes) as an array (pixels, samples, 3): a view of
+    channel-major storage (pixels, 3, samples), so that the reductions over the samples (the
+    pilot's means and variances) read contiguous memory. With the channels innermost, as until
+    session 24, ``np.var`` over the samples of 1024 × 144 took 5.2 ms instead of 0.4, and the
+    twopass pilot's variances and bias test about 0.05 s on window_interior."""
+    shape = (len(pixels.index), samples)
+    arr = np.stack([np.asarray(c).reshape(shape) for c in (spectrum.x, spectrum.y, spectrum.z)],
+                   axis=1)
+    return arr.transpose(0, 2, 1)
+
+
+def join_samples(arrays) -> np.ndarray:
+    """Pilot arrays of the same pixels (pixels, samples_i, 3), their samples joined: as
+    ``np.concatenate(arrays, axis=1)``, in :func:`samples_array`'s channel-major storage."""
+    return np.concatenate([a.transpose(0, 2, 1) for a in arrays], axis=2).transpose(0, 2, 1)
 
 
 @dataclass

@@ -131,3 +131,21 @@ def test_a_short_render_gets_a_smaller_pilot_never_below_the_floor():
     assert pl.pixel_count(s, spp, film) * per_pixel <= pl.PIXEL_SHARE * spp * film
     assert pl.pixel_count(s, 1, film) == pl.MIN_PIXELS
     assert pl.pixel_count(pl.PilotSettings(pixels=64, samples=144), 1, film) == 64
+
+
+def test_samples_are_stored_channel_major_and_joined_as_concatenated():
+    """samples_array: lanes sample-minor, pixel-major → values[p, s, c], read through a view
+    whose samples are contiguous per channel (the pilot's reductions run over them);
+    join_samples: np.concatenate along the samples, same layout."""
+    P, S = 5, 7
+    lanes = np.arange(P * S, dtype=np.float32)
+    spectrum = mi.Color3f(mi.Float(lanes), mi.Float(lanes + 1000), mi.Float(lanes + 2000))
+    px = pl.PilotPixels(index=np.arange(P, dtype=np.uint32), width=P, height=1)
+    v = pl.samples_array(spectrum, px, S)
+    assert v.shape == (P, S, 3)
+    assert v[3, 4, 0] == 3 * S + 4 and v[3, 4, 2] == 2000 + 3 * S + 4
+    assert v.strides[1] == v.itemsize  # samples contiguous
+    w = pl.samples_array(spectrum, px, S) + 0.5
+    joined = pl.join_samples([v, w])
+    assert np.array_equal(joined, np.concatenate([v, w], axis=1))
+    assert joined.strides[1] == joined.itemsize
