@@ -13,6 +13,8 @@ def test_every_forced_combination_either_names_rows_or_fails_naming_the_choices(
                                                                  "radiance_cache"]
     assert [c.props for c in cost.matching(direct="spike", indirect="cache")] == [
         (("direct", "spike"),) + cost.CACHE_RADIOSITY]
+    assert [c.props for c in cost.matching(direct="emitter", indirect="cache")] == [
+        (("direct", "emitter"),)]  # the cache's default direct light is spike lists
     assert [c.plugin for c in cost.matching(caustics="rex")] == ["rex"]
     assert len(cost.matching()) == len(cost.COMPOSITIONS)
     with pytest.raises(ValueError, match="no composition has direct='spike', indirect='rex'"):

@@ -496,13 +496,30 @@ def test_spike_lists_for_the_direct_light_change_the_noise_not_the_mean():
     for k in range(4):
         img, integ = render(scene, spp=32, seed=10 + k, direct="spike")
         spike.append(img)
-        emitter.append(render(scene, spp=32, seed=10 + k)[0])
+        emitter.append(render(scene, spp=32, seed=10 + k, direct="emitter")[0])
         s = integ.stats
         assert s["spike_lists"] > 0 and s["spike_visibility_rays"] > 0 and s["spike_bytes"] > 0
         assert s["cache_bytes"] >= s["spike_bytes"]
     assert np.isfinite(spike).all()
     z = block_z_scores(spike, emitter, block=4)
     assert np.abs(z).max() < 4.0, z
+
+
+def test_spike_lists_are_the_default_where_the_scene_has_more_than_one_emitter():
+    """The default ``direct`` is "spike": lists on a scene of many emitters, none where one
+    emitter leaves nothing to choose (emitter sampling then, as ``direct="emitter"``)."""
+    import os
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    many = mi.load_file(os.path.join(root, "scenes_xml", "many_lights.xml"), res=16)
+    _, integ = render(many, spp=1)
+    assert integ.direct == "spike" and integ.stats["spike_lists"] > 0
+    _, integ = render(many, spp=1, direct="emitter")
+    assert "spike_lists" not in integ.stats
+    one = mi.load_file(os.path.join(root, "scenes_xml", "cornell_box.xml"), res=16)
+    assert len(one.emitters()) == 1
+    _, integ = render(one, spp=1)
+    assert "spike_lists" not in integ.stats
 
 
 def test_clusters_split_at_a_crease():
