@@ -124,6 +124,12 @@ BAND_IMPLICIT, BAND_INFLUENCE, BAND_ALL = 0, 1, 2
 #: rays per round of the self-refining visibility estimate and its tolerance (§4)
 VIS_ROUND = 10
 VIS_TOL = 0.1
+#: once a round has at most this many visibility rays, the rounds left are traced in one call
+#: (:func:`estimate_visibility`'s ``tail_rays``): a call's fixed part (tracing the emitters'
+#: sampling code, generating the kernels) was about 14 ms on many_lights against about 4e-8 s
+#: a ray, so a round of fewer than ~3.5e5 rays costs more in calls than in rays; 2^16 keeps
+#: the rays traced for nothing below ~6e5 (about 25 ms)
+VIS_TAIL_RAYS = 1 << 16
 #: position / ray samples per emitter when estimating its flux, area and shape
 SOURCE_SAMPLES = 256
 #: largest dense cell table (cells); a finer grid is refused with a message naming grid_res
@@ -1098,11 +1104,12 @@ def _candidate_pairs_numpy(sources: Sources, box_lo, box_hi, influence: float, c
 
 
 def _trace_visibility(scene, sources, patches, pts, pt_off, pair_list, pair_src, seed,
-                      round_index, first):
-    """One round for a chunk of pairs: ``VIS_ROUND`` rays each from random sample points of the
-    pair's cell to random points of its source. Returns (reached per ray (numpy bool), rays)."""
-    n = pair_list.size * VIS_ROUND
-    pair = dr.arange(mi.UInt32, n) // VIS_ROUND
+                      round_index, first, per_pair=VIS_ROUND):
+    """``per_pair`` rays (one round's ``VIS_ROUND``, or several rounds') for each pair of a
+    chunk, from random sample points of the pair's cell to random points of its source, pair
+    by pair. Returns (reached per ray (numpy bool), rays traced)."""
+    n = pair_list.size * per_pair
+    pair = dr.arange(mi.UInt32, n) // dr.opaque(mi.UInt32, per_pair)
     lid = dr.gather(mi.UInt32, jit(mi.UInt32, pair_list.astype(np.uint32)), pair)
     sid = dr.gather(mi.UInt32, jit(mi.UInt32, pair_src.astype(np.uint32)), pair)
     rng = _rng(n, seed ^ (round_index * 0x9E3779B1), _SALT_VIS, first)
@@ -1141,8 +1148,8 @@ def _trace_visibility(scene, sources, patches, pts, pt_off, pair_list, pair_src,
     ray.maxt = dr.maximum(maxt, 0.0)
     blocked = scene.ray_test(ray, ok)
     reached = ok & ~blocked
-    rays = int(dr.count(ok)[0])
-    return np.array(reached, dtype=bool), rays
+    dr.eval(reached, ok)  # one kernel for both (a dr.count of ok launched its own)
+    return np.array(reached, dtype=bool), int(np.count_nonzero(np.array(ok, dtype=bool)))
 
 
 def can_light(sources: Sources, pair_list, pair_src, pts, pt_off, chunk=1 << 20):
@@ -1179,36 +1186,54 @@ def can_light(sources: Sources, pair_list, pair_src, pts, pt_off, chunk=1 << 20)
     return out
 
 
-def estimate_visibility(trace, n_pairs, max_rays=100, chunk_pairs=None, occluded_rays=None):
+def estimate_visibility(trace, n_pairs, max_rays=100, chunk_pairs=None, occluded_rays=None,
+                        tail_rays=None):
     """The self-refining visibility estimate of §4 for ``n_pairs`` pairs; a pair with no ray
     through after ``occluded_rays`` rays (None: never; the paper's rule) is done with g = 0.
 
     ``trace(pairs, round_index) -> hits`` returns, for the pair indices given (numpy int64),
     how many of ``VIS_ROUND`` rays reached the source. Returns ``(g (n_pairs,), rays_per_pair)``.
+
+    ``tail_rays``: once a round's rays (open pairs × ``VIS_ROUND``) are at most this many,
+    every round left is traced in one call, ``trace(pairs, round_index, rounds) -> hits
+    (pairs, rounds)``, and the rule is applied to its rounds in turn. Each round's rays are
+    drawn independently of the others' either way, so the estimate is the same; the rays of
+    rounds a pair does not reach are traced for nothing (at most ``tail_rays`` × the rounds
+    left), for one call's fixed cost instead of one per round: on many_lights at 256² rounds
+    3–10 held 4k to 600 pairs and took 14–17 ms each, 1–2 ms of it tracing rays
+    (:data:`VIS_TAIL_RAYS`).
     """
     rounds = max(1, int(max_rays) // VIS_ROUND)
     H = np.zeros(n_pairs, np.int64)
     n = np.zeros(n_pairs, np.int64)
     g = np.zeros(n_pairs)
     open_ = np.arange(n_pairs)
-    for k in range(rounds):  # ≤ 10 rounds; each is one wavefront over every open pair
-        if open_.size == 0:
-            break
-        h = np.asarray(trace(open_, k), dtype=np.int64)
-        prev = np.where(n[open_] > 0, H[open_] / np.maximum(n[open_], 1), 0.0)
-        H[open_] += h
-        n[open_] += VIS_ROUND
-        if k == 0:
-            done = h == VIS_ROUND
-        else:
-            done = (h > 1) & (np.abs(h / VIS_ROUND - prev) <= VIS_TOL + 1e-9)
-        if occluded_rays is not None:
-            done |= (H[open_] == 0) & (n[open_] >= int(occluded_rays))
-        if k == rounds - 1:
-            done[:] = True
-        fin = open_[done]
-        g[fin] = H[fin] / n[fin]
-        open_ = open_[~done]
+    k = 0
+    while k < rounds and open_.size:  # ≤ 10 rounds; each is one wavefront over every open pair
+        batch = rounds - k if tail_rays is not None and \
+            open_.size * VIS_ROUND <= tail_rays else 1
+        hits = np.asarray(trace(open_, k) if batch == 1 else trace(open_, k, batch),
+                          dtype=np.int64).reshape(open_.size, batch)
+        row = np.arange(open_.size)  # each open pair's row of hits
+        for j in range(batch):
+            if open_.size == 0:
+                break
+            h = hits[row, j]
+            prev = np.where(n[open_] > 0, H[open_] / np.maximum(n[open_], 1), 0.0)
+            H[open_] += h
+            n[open_] += VIS_ROUND
+            if k == 0:
+                done = h == VIS_ROUND
+            else:
+                done = (h > 1) & (np.abs(h / VIS_ROUND - prev) <= VIS_TOL + 1e-9)
+            if occluded_rays is not None:
+                done |= (H[open_] == 0) & (n[open_] >= int(occluded_rays))
+            if k == rounds - 1:
+                done[:] = True
+            fin = open_[done]
+            g[fin] = H[fin] / n[fin]
+            open_, row = open_[~done], row[~done]
+            k += 1
     return g, n
 
 
@@ -1288,24 +1313,26 @@ def build_spike_grid(scene, sources: Sources, settings: SpikeSettings, seed=0, s
     pt_off_dr = jit(mi.UInt32, point_offsets.astype(np.uint32))
     patches = solution.patches if solution is not None else None
     counter = {"rays": 0, "first": 0}
-    chunk = max(1, settings.batch_rays // VIS_ROUND)
 
-    def trace(pairs, k):
-        hits = np.zeros(pairs.size, np.int64)
+    def trace(pairs, k, rounds=1):
+        per_pair = VIS_ROUND * rounds
+        chunk = max(1, settings.batch_rays // per_pair)
+        hits = np.zeros((pairs.size, rounds), np.int64)
         for a in range(0, pairs.size, chunk):  # chunks bound memory; each is one ray_test
             sel = pairs[a:a + chunk]
             reached, rays = _trace_visibility(scene, sources, patches, pts_dr, pt_off_dr,
                                               pair_list[sel], pair_src[sel], seed, k,
-                                              counter["first"])
-            counter["first"] += sel.size * VIS_ROUND
+                                              counter["first"], per_pair)
+            counter["first"] += sel.size * per_pair
             counter["rays"] += rays
-            hits[a:a + chunk] = reached.reshape(-1, VIS_ROUND).sum(axis=1)
+            hits[a:a + chunk] = reached.reshape(-1, rounds, VIS_ROUND).sum(axis=2)
         if bar is not None:
-            bar.update(1)
+            bar.update(rounds)
         return hits
 
     g, rays_per_pair = estimate_visibility(trace, pair_list.size, settings.visibility_max_rays,
-                                           occluded_rays=settings.visibility_occluded_rays)
+                                           occluded_rays=settings.visibility_occluded_rays,
+                                           tail_rays=VIS_TAIL_RAYS)
     t_vis = time.perf_counter() - t0 - t_camera - t_cand
 
     keep = g > 0

@@ -393,3 +393,32 @@ def test_candidate_pairs_on_the_device_are_the_float64_ones(chunk):
     np.testing.assert_array_equal(got[1], ref[1])
     assert not np.isin(got[1], np.flatnonzero(band == BAND_IMPLICIT)).any()
     assert np.bincount(got[0], minlength=L).min() >= np.count_nonzero(band == BAND_ALL)
+
+
+@pytest.mark.parametrize("tail_rays", [0, 5000, 10 ** 9])
+def test_the_rounds_left_traced_in_one_call_give_the_same_estimate(tail_rays):
+    """``tail_rays``: once a round has at most that many rays, the rounds left are traced at
+    once (``trace(pairs, k, rounds)``) and the rule read off them round by round: with the
+    same hits per round, g and the rays each pair used are those of one call per round."""
+    rng = np.random.default_rng(6)
+    n_pairs = 3000
+    p = np.concatenate([np.zeros(500), np.ones(500), rng.uniform(0, 1, 2000)])
+    table = rng.binomial(VIS_ROUND, p[:, None], size=(n_pairs, 10))
+    table[:50, 0] = 1
+    calls = []
+
+    def trace(pairs, k, rounds=1):
+        calls.append((pairs.size, k, rounds))
+        return table[pairs, k:k + rounds] if rounds > 1 else table[pairs, k]
+
+    g_round, rays_round = estimate_visibility(trace, n_pairs, 100, occluded_rays=40)
+    per_round = len(calls)
+    calls.clear()
+    g, rays = estimate_visibility(trace, n_pairs, 100, occluded_rays=40, tail_rays=tail_rays)
+    assert np.array_equal(g, g_round) and np.array_equal(rays, rays_round)
+    batched = [c for c in calls if c[2] > 1]
+    if tail_rays == 0:  # never that few rays: one call per round
+        assert not batched and len(calls) == per_round
+    else:  # one call for the rest, from the first round with few enough rays
+        assert len(batched) == 1 and batched[0][0] * VIS_ROUND <= tail_rays
+        assert batched[0][1] + batched[0][2] == 10 and len(calls) < per_round
