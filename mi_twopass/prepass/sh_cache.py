@@ -144,8 +144,11 @@ class CachedReceivers:
         self.near = near
         #: ids of the receivers left out as bright reflectors (or lying on one)
         self.bright = np.zeros(0, np.uint32) if bright is None else np.asarray(bright, np.uint32)
-        # a Dr.Jit copy now, never first inside a symbolic loop; the invalid id reads False
+        # Dr.Jit copies now, never first inside a symbolic loop; the invalid id reads False
         self._table = jit(mi.Bool, np.append(self.cached, False))
+        bright_mask = np.zeros(len(self.cached) + 1, dtype=bool)
+        bright_mask[self.bright] = True
+        self._bright_table = jit(mi.Bool, bright_mask)
 
     @property
     def nbytes(self) -> int:
@@ -162,6 +165,13 @@ class CachedReceivers:
         ok &= lambertian_flags(si.bsdf().flags())
         rid = self.receivers.lookup(si, ok)
         return ok & dr.gather(mi.Bool, self._table, rid, ok), rid
+
+
+    def bright_at(self, rid, active=True):
+        """``mi.Bool``: receiver ``rid`` (:meth:`receiver_at`'s) is a bright reflector the
+        cache leaves out (:func:`bright_receivers`); False for the invalid id."""
+        active = mi.Bool(active)
+        return active & dr.gather(mi.Bool, self._bright_table, rid, active)
 
 
 def bright_receivers(B_reflected, area, is_diffuse, contrast: float) -> np.ndarray:

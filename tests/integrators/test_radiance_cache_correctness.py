@@ -429,3 +429,22 @@ def test_bright_reflectors_are_traced_not_cached_so_no_prepass_seed_swings_the_i
     rel_sd = lambda m: m.std(ddof=1) / m.mean()  # noqa: E731
     assert rel_sd(means()) < 0.025
     assert rel_sd(means(elements_per_patch=1)) < 0.025
+
+
+def test_bright_reflectors_are_flagged_for_the_far_reads_past_the_cache_vertex():
+    """The render reads a bright reflector the cache leaves out from the coarse solution where
+    a ray past the cache vertex lands on it at least alpha away (traced on, its emitter sample
+    toward the bulb beside it made the rare, huge samples of many_lights): ``bright_at`` flags
+    exactly those receivers, never a cached one or the invalid id."""
+    scene = mi.load_dict(hs.lampshade())
+    integ = mi.load_dict({"type": "radiance_cache"})
+    pre, _ = integ.ensure_prepass(scene, 0)
+    cached = pre.cached
+    M = len(cached.cached)
+    some_cached = np.flatnonzero(cached.cached)[:5]
+    rid = np.concatenate([cached.bright, some_cached, [M]]).astype(np.uint32)
+    flags = np.asarray(cached.bright_at(mi.UInt32(rid), True), dtype=bool)
+    n = cached.bright.size
+    assert n > 0 and flags[:n].all() and not flags[n:].any()
+    img = np.asarray(mi.render(scene, integrator=integ, spp=16, seed=1))
+    assert np.isfinite(img).all() and integ.stats["solution_reads"] > 0
