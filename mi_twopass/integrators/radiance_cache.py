@@ -233,8 +233,9 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
        - |float|
        - Receivers (patches, and elements on their own) whose reflected radiosity is at least
          this many times the cached ones' area-weighted mean (and together carry ≥ 2 % of the
-         reflected power) are not cached: the far and near fields read nothing there and the
-         cache vertex's BSDF ray that meets them traces on (default: 4, the contrast of
+         reflected power) are not cached: the far and near fields read nothing there; a ray
+         past the cache vertex that meets them at least alpha away reads their B_r/π from the
+         coarse solution and ends, a nearer one traces on (default: 4, the contrast of
          GSII's virtual luminaires; ≥ 1). An order-2 SH field cannot hold a reflector that
          much brighter than the rest (a lamp shade's inside): cached, it made ±20–50 % blotches that moved
          with the prepass seed (:func:`~mi_twopass.prepass.sh_cache.bright_receivers`).

@@ -188,9 +188,12 @@ def bright_receivers(B_reflected, area, is_diffuse, contrast: float) -> np.ndarr
     --renders 2`` at 128 px, 64 spp: bias part 9.4e-3, 3.4e-2, 1.1e-2, 1.9e-2 over four
     seeds, the bound 3e-3; neither 8192 gather rays per cluster nor 8× the particles brought
     seed 1 under 1.1e-2). Left out, they send no B_r into the far field or the near field, and
-    the cache vertex's BSDF ray that meets them traces on, as for every surface the cache does
+    the cache vertex's BSDF ray that meets them traced on, as for every surface the cache does
     not hold: seeds 0 and 1 read −4.2e-4 and −2.5e-4 (± 2.2e-3), measured on patches (session
-    11). Leaving out only those also above half the brightest (GSII's rule, the virtual
+    11). Since session 25 a ray past the cache vertex that meets one at least alpha away reads
+    its B_r/π from the coarse solution instead (:meth:`CachedReceivers.bright_at`): traced on,
+    the emitter sample toward the light beside it carried 1/r² (many_lights: rare samples of
+    900 where the pixel's mean is 0.46). Leaving out only those also above half the brightest (GSII's rule, the virtual
     luminaires') left 4.4–7.2e-3. A mask of the cache's own: the solution, which other
     prepasses may share through a memo, is not changed (until session 18 it was)."""
     Br = np.asarray(B_reflected, dtype=np.float64).mean(axis=1)
