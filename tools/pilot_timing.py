@@ -16,11 +16,11 @@ import argparse
 import time
 
 import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
-import mitsuba as mi
-import numpy as np
 
 from mi_twopass.compose import pilot as pilot_module
 from mi_twopass.scenefile import load_scene
+
+from twopass_timing import timed_renders  # noqa: E402  (tools/ is the script's own directory)
 
 CALLS = []
 
@@ -44,13 +44,7 @@ def main():
     a = ap.parse_args()
     pilot_module.timed_samples = logged_timed_samples
     scene = load_scene(a.scene, film_res=a.res)
-    np.asarray(mi.render(scene, integrator=mi.load_dict({"type": "twopass"}), spp=a.spp, seed=0))
-    for seed in a.seeds:
-        CALLS.clear()
-        integ = mi.load_dict({"type": "twopass"})
-        t = time.perf_counter()
-        np.asarray(mi.render(scene, integrator=integ, spp=a.spp, seed=seed))
-        t = time.perf_counter() - t
+    for seed, t, integ in timed_renders(scene, a.spp, a.seeds, before_each=CALLS.clear):
         st = integ.stats
         print(f"seed {seed}: render {t:.3f} s, pilot {st['pilot_seconds']:.3f} s, "
               f"chose {st['twopass_choice']}")

@@ -19,6 +19,20 @@ import numpy as np
 from mi_twopass.scenefile import load_scene
 
 
+def timed_renders(scene, spp: int, seeds, before_each=None):
+    """One twopass render at seed 0 (it compiles the kernels), then one fresh twopass per seed
+    of ``seeds``: yields ``(seed, seconds to the numpy copy, the integrator)``.
+    ``before_each()``, where given, is called just before each timed render."""
+    np.asarray(mi.render(scene, integrator=mi.load_dict({"type": "twopass"}), spp=spp, seed=0))
+    for seed in seeds:
+        if before_each is not None:
+            before_each()
+        integ = mi.load_dict({"type": "twopass"})
+        t = time.perf_counter()
+        np.asarray(mi.render(scene, integrator=integ, spp=spp, seed=seed))
+        yield seed, time.perf_counter() - t, integ
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("scene")
@@ -27,12 +41,7 @@ def main():
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     a = ap.parse_args()
     scene = load_scene(a.scene, film_res=a.res)
-    np.asarray(mi.render(scene, integrator=mi.load_dict({"type": "twopass"}), spp=a.spp, seed=0))
-    for seed in a.seeds:
-        integ = mi.load_dict({"type": "twopass"})
-        t = time.perf_counter()
-        np.asarray(mi.render(scene, integrator=integ, spp=a.spp, seed=seed))
-        t = time.perf_counter() - t
+    for seed, t, integ in timed_renders(scene, a.spp, a.seeds):
         st = integ.stats
         print(f"seed {seed}: {t:.2f} s, pilot+prepasses {st['prepass_seconds']:.2f} s, "
               f"built {len(st['twopass_candidates'])}, chose {st['twopass_choice']}", flush=True)
