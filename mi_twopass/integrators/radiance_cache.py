@@ -65,17 +65,19 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     ``thindielectric``, ``mask``) and its receiver of the radiosity solution (the receiving
     element, with elements) on the side hit is diffuse, not cut by geometry, not unevenly lit
     (unless flat, exposed and so refined into cells read at the point hit:
-    :mod:`~mi_twopass.prepass.element_grid`) and not a bright reflector (:class:`~mi_twopass.prepass.sh_cache.CachedReceivers`). The
-    SH gather rays
+    :mod:`~mi_twopass.prepass.element_grid`) and not a bright reflector
+    (:class:`~mi_twopass.prepass.sh_cache.CachedReceivers`). The SH gather rays
     read B_r/π only on cached surfaces (0 elsewhere), the near-field triangles of other
     surfaces have R_t = 0, so ρ/π (B_D + λ B_C) estimates the light that reaches x *from cached
     surfaces* and nothing else. The rest is path traced, never read from the cache: a vertex
     that is not purely diffuse (a glossy, mixed or transmissive camera hit) continues as in
     ``path``; at the cache vertex, the BSDF ray (also the MIS partner of emitter sampling) ends
     on a cached surface (after its emission is counted) and otherwise carries the path on from
-    there. Past that surface a ray that lands at least ``alpha`` away on a cached surface reads
-    the surface's reflected radiosity B_r/π from the coarse solution and ends there (GSII's far
-    gather, as in ``radiosity_gather``); until session 20 such paths ran on to Russian
+    there, except on a bright reflector at least ``alpha`` away, which it reads from the coarse
+    solution (``bright_contrast``). Past that surface a ray that lands at least ``alpha`` away
+    on a cached surface or a bright reflector reads the surface's reflected radiosity B_r/π
+    from the coarse solution and ends there (GSII's far gather, as in ``radiosity_gather``);
+    until session 20 such paths ran on to Russian
     roulette (window_interior at 256², 16 spp: render 0.396 → 0.350 s, the indirect light's
     relvar at 128 px 0.0168 → 0.0098, ``tools/variance_parts.py``). This is how light that
     reaches x through specular chains (L S+ D: a lamp behind a window pane, caustics of glass

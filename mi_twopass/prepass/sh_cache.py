@@ -166,7 +166,6 @@ class CachedReceivers:
         rid = self.receivers.lookup(si, ok)
         return ok & dr.gather(mi.Bool, self._table, rid, ok), rid
 
-
     def bright_at(self, rid, active=True):
         """``mi.Bool``: receiver ``rid`` (:meth:`receiver_at`'s) is a bright reflector the
         cache leaves out (:func:`bright_receivers`); False for the invalid id."""
@@ -193,8 +192,8 @@ def bright_receivers(B_reflected, area, is_diffuse, contrast: float) -> np.ndarr
     11). Since session 25 a ray past the cache vertex that meets one at least alpha away reads
     its B_r/π from the coarse solution instead (:meth:`CachedReceivers.bright_at`): traced on,
     the emitter sample toward the light beside it carried 1/r² (many_lights: rare samples of
-    900 where the pixel's mean is 0.46). Leaving out only those also above half the brightest (GSII's rule, the virtual
-    luminaires') left 4.4–7.2e-3. A mask of the cache's own: the solution, which other
+    900 where the pixel's mean is 0.46). Leaving out only those also above half the brightest
+    (GSII's rule, the virtual luminaires') left 4.4–7.2e-3. A mask of the cache's own: the solution, which other
     prepasses may share through a memo, is not changed (until session 18 it was)."""
     Br = np.asarray(B_reflected, dtype=np.float64).mean(axis=1)
     return reclassified_patches(Br, area, is_diffuse, 0.0, contrast)
