@@ -19,9 +19,10 @@ fixed part, subtracted from the faster 4M run; from session 19 to 24 it ran M/9 
 took the smaller per-lane time of the two. The larger run set it almost always (the small one's
 lanes cost more: thread start-up), and on many_lights the second call's tracing and code
 generation (about 0.04 s per candidate) was a third of the pilot's time. Since session 25 one
-call traces all M = 144 samples (:data:`CALLS`): twopass's pilot went 0.36 → 0.26 s on
-many_lights at 256², 256 spp, and 0.245 → 0.218 s on window_interior at 64 spp, for the same
-choices (``tools/pilot_timing.py``).
+call traces all M = 144 samples (:data:`CALLS`): twopass's pilot went 0.319–0.338 →
+0.228–0.245 s on many_lights at 256², 256 spp, and 0.226–0.257 → 0.211–0.220 s on
+window_interior at 64 spp, for the same choices (``tools/pilot_timing.py``, alternating
+checkouts).
 
 Relative variance. For pixel p, channel k, the sample variance s²_pk of the M samples, over
 the squared pixel value R_pk of a reference shared by all candidates, with relMSE's ε

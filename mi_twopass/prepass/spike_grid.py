@@ -1200,7 +1200,7 @@ def estimate_visibility(trace, n_pairs, max_rays=100, chunk_pairs=None, occluded
     drawn independently of the others' either way, so the estimate is the same; the rays of
     rounds a pair does not reach are traced for nothing (at most ``tail_rays`` × the rounds
     left), for one call's fixed cost instead of one per round: on many_lights at 256² rounds
-    3–10 held 4k to 600 pairs and took 14–17 ms each, 1–2 ms of it tracing rays
+    3–10 held 4k to 600 pairs and took 14–17 ms each, 0.5–2 ms of it tracing rays
     (:data:`VIS_TAIL_RAYS`).
     """
     rounds = max(1, int(max_rays) // VIS_ROUND)
