@@ -228,6 +228,21 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          cannot cover the shading points, ``alpha`` grows until they can
          (:func:`~mi_twopass.prepass.sh_cache.fit_clusters`; stat ``alpha``): a far field
          stands for a cluster only if the near field reaches as far as the cluster.
+     * - parallax
+       - |float|
+       - κ ≥ 0: clusters are also held within κ / g of each shading point, g the mean of
+         [t > alpha] / t over 16 rays from it (t the distance to the geometry hit): the
+         translational gradient of Ward et al.'s irradiance cache, so κ bounds the mean angle
+         by which the far geometry shifts across a cluster
+         (:func:`~mi_twopass.prepass.sh_cache.parallax_limits`). Default 0: clusters within
+         alpha only. Where geometry lies just beyond alpha (a floor under a metal plate 0.65 m
+         up, alpha 0.67 m), clusters of size alpha blur its occlusion into bands of +20 % and
+         −12 % of the image there; 0.1 (with ``max_clusters`` 4096) took them to +6–8 % and −1 %,
+         and the bias part (``tools/bias_map.py``, 256², 2 × 256 spp) down by 9–39 % on five
+         of six scenes (veach-bidir, noise-bound, +1 %). It costs 1.7–2.3× the clusters,
+         +0.05–0.07 s of prepass and about 10 % more render time per sample on the office and
+         window_interior (docs/results/mis-plates-2026-11-28). Raise ``max_clusters`` with it,
+         or alpha grows.
      * - rays_per_cluster
        - |int|
        - Gather rays per SH sample (default: 128).
@@ -308,6 +323,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                                                elements_per_patch=4)
         self.max_points = read_int(props, "max_points", 4096, minimum=1)
         self.max_clusters = read_int(props, "max_clusters", 1024, minimum=1)
+        self.parallax = read_float(props, "parallax", 0.0, minimum=0.0)
         self.rays_per_cluster = read_int(props, "rays_per_cluster", 128, minimum=1)
         self.max_near_triangles = read_int(props, "max_near_triangles", 1 << 17, minimum=1)
         self.near_cell_rel = read_float(props, "near_cell_rel", 0.5, minimum=0.0, strict=True)
@@ -321,7 +337,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
 
     def settings(self):
         return (self.alpha_rel, self.alpha_abs, self.fake_gi, self.ambient, self.radiosity,
-                self.max_points, self.max_clusters, self.rays_per_cluster,
+                self.max_points, self.max_clusters, self.parallax,
+                self.rays_per_cluster,
                 self.max_near_triangles, self.near_cell_rel, self.near_merge_rel, self.direct,
                 self.bright_contrast, self.pixel_table, self.near_weight, self.near_far)
 
@@ -331,6 +348,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         return CacheSettings(alpha_rel=self.alpha_rel, alpha=self.alpha_abs,
                              fake_gi=self.fake_gi, ambient=self.ambient, radiosity=self.radiosity,
                              max_points=self.max_points, max_clusters=self.max_clusters,
+                             parallax=self.parallax,
                              rays_per_cluster=self.rays_per_cluster,
                              bright_contrast=self.bright_contrast,
                              max_near_triangles=self.max_near_triangles,

@@ -17,7 +17,11 @@ Steps (:func:`build_radiance_cache`):
    *and* normal (``(p, NORMAL_SPLIT · alpha · n)``, since session 22): a cluster spanning a
    crease of more than about 60° fits one field from rays of different hemispheres, and a
    point reads directions only its own side's rays sampled where the far environment differs
-   across the crease (a window's reveal beside the wall; below).
+   across the crease (a window's reveal beside the wall; below). With ``parallax`` κ > 0 a
+   cluster is held smaller still where its points see geometry just beyond alpha
+   (:func:`parallax_limits`: κ over the mean inverse distance of the far hits, after Ward et
+   al.'s irradiance-cache validity radius), where a cluster of size alpha blurs that
+   geometry's occlusion across its points.
 3. **Gather** (eq. 4): per cluster, ``rays_per_cluster`` rays from shading points of the
    cluster drawn at random, uniform over each point's hemisphere, read the coarse solution at the
    hit: the *reflected* radiance B_r/π of the radiosity patch (indirect light only; direct light is
@@ -346,8 +350,10 @@ def cluster_labels(p, alpha: float, max_clusters: int = 256, normals=None) -> Cl
     positions only; ``normal`` the members' mean normals."""
     pos = np.asarray(p, dtype=np.float64).reshape(-1, 3)
     p = pos
+    limit = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (len(pos),))
+    scale = float(alpha) if np.ndim(alpha) == 0 else float(limit.max(initial=0.0))
     if normals is not None:
-        p = np.hstack([pos, NORMAL_SPLIT * float(alpha)
+        p = np.hstack([pos, NORMAL_SPLIT * scale
                        * np.asarray(normals, dtype=np.float64).reshape(-1, 3)])
     n = len(p)
     labels = np.zeros(n, dtype=np.int64)
@@ -355,12 +361,14 @@ def cluster_labels(p, alpha: float, max_clusters: int = 256, normals=None) -> Cl
     splittable = np.ones(K, dtype=bool)
     while True:
         count, center, d, radius = _group_stats(p, labels, K)
-        want = np.flatnonzero(splittable & (radius > alpha) & (count >= 2))
+        bound = np.full(K, np.inf)
+        np.minimum.at(bound, labels, limit)
+        want = np.flatnonzero(splittable & (radius > bound) & (count >= 2))
         room = int(max_clusters) - K
         if room <= 0 or len(want) == 0:
             break
-        if len(want) > room:  # the widest first
-            want = want[np.argsort(-radius[want], kind="stable")[:room]]
+        if len(want) > room:  # the widest (against its bound) first
+            want = want[np.argsort(-radius[want] / bound[want], kind="stable")[:room]]
         split = np.zeros(K, dtype=bool)
         split[want] = True
         sel = np.flatnonzero(split[labels])
@@ -413,11 +421,13 @@ def cluster_points(p, alpha: float, max_clusters: int = 256, seed: int = 0):
     return cluster_labels(p, alpha, max_clusters).members()
 
 
-def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0, normals=None):
-    """:func:`cluster_labels` with every cluster within ``alpha``, growing alpha where
-    ``max_clusters`` cannot cover the points with clusters that small → ``(alpha', Clusters)``
-    with alpha' ≥ alpha the smallest size found (doubling, then 6 bisection steps) at which the
-    budget suffices.
+def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0, normals=None,
+                 limits=None):
+    """:func:`cluster_labels` with every cluster within ``alpha`` (and within the smallest of
+    its points' ``limits``, where given: :func:`parallax_limits`), growing alpha (and the
+    limits with it) where ``max_clusters`` cannot cover the points with clusters that small →
+    ``(alpha', Clusters)`` with alpha' ≥ alpha the smallest size found (doubling, then 6
+    bisection steps) at which the budget suffices.
 
     Why alpha grows rather than the clusters alone: the far field of a cluster, fitted from
     rays of its points that travel farther than alpha, stands for every point of the cluster
@@ -428,30 +438,42 @@ def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0, normal
     caller must use alpha' there."""
     p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
     alpha = float(alpha)
-    fits = lambda c, a: len(c) == 0 or float(c.radius.max()) <= a * (1 + 1e-9)  # noqa: E731
-    clusters = cluster_labels(p, alpha, max_clusters, normals)
-    if fits(clusters, alpha):
+    base = alpha if limits is None else \
+        np.minimum(np.asarray(limits, dtype=np.float64).reshape(-1), alpha)
+
+    def attempt(f):
+        c = cluster_labels(p, base * f if limits is not None else alpha * f, max_clusters,
+                           normals)
+        if len(c) == 0:
+            return c, True
+        bound = np.full(len(c), alpha * f)
+        if limits is not None:
+            np.minimum.at(bound, c.labels, base * f)
+        return c, bool(np.all(c.radius <= bound * (1 + 1e-9)))
+
+    clusters, ok = attempt(1.0)
+    if ok:
         return alpha, clusters
-    lo, hi = alpha, 2.0 * alpha
+    lo, hi = 1.0, 2.0
     extent = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
     best = None
     for _ in range(64):
-        c = cluster_labels(p, hi, max_clusters, normals)
-        if fits(c, hi):
+        c, ok = attempt(hi)
+        if ok:
             best = c
             break
         lo, hi = hi, 2.0 * hi
-        if hi > 4.0 * extent + alpha:  # one cluster always fits its own extent
-            best = cluster_labels(p, hi, max_clusters, normals)
+        if float(np.min(base)) * hi > 4.0 * extent + alpha:
+            best = c  # one cluster always fits its own extent
             break
     for _ in range(6):
         mid = float(np.sqrt(lo * hi))
-        c = cluster_labels(p, mid, max_clusters, normals)
-        if fits(c, mid):
+        c, ok = attempt(mid)
+        if ok:
             hi, best = mid, c
         else:
             lo = mid
-    return hi, best
+    return alpha * hi, best
 
 
 class ClusterGrid:
@@ -748,6 +770,44 @@ class RadianceCache:
         return hit
 
 
+def parallax_limits(scene, p, n, alpha: float, kappa: float, rays: int = 16, seed: int = 0):
+    """Per shading point (``p``, ``n``: (m, 3)), the widest cluster whose far field it may
+    share: min(``alpha``, ``kappa`` / g) with g = mean over ``rays`` uniform hemisphere rays of
+    [t > alpha] / t, t the distance to the first hit (a miss or a hit nearer than alpha adds 0:
+    the near field holds what lies within alpha). A cluster of radius r fitted from rays that
+    meet geometry at t sees it shifted by an angle of about r / t across its points (the
+    translational gradient of Ward et al.'s irradiance cache, whose records are valid out to a
+    multiple of the harmonic mean distance); kappa bounds the mean of that shift over the far
+    field. Where the far field lies well beyond alpha, the limit is alpha itself."""
+    p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+    m = len(p)
+    if m == 0 or kappa <= 0 or rays < 1:
+        return np.full(m, float(alpha))
+    nn = np.asarray(n, dtype=np.float64).reshape(-1, 3)
+    rng = np.random.default_rng(hash31(seed, 5))
+    k = int(rays)
+    src = np.repeat(np.arange(m), k)
+    o, nr = p[src], nn[src]
+    # stratified uniform hemisphere: one ray per cell of a k-cell grid in (z, phi)
+    cell = np.tile(np.arange(k), m)
+    side = max(int(np.sqrt(k)), 1)
+    z = (cell // side % side + rng.random(len(src))) / side
+    phi = 2 * np.pi * ((cell % side) + rng.random(len(src))) / side
+    r = np.sqrt(np.maximum(0.0, 1 - z * z))
+    tmp = np.where(np.abs(nr[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    a = np.cross(nr, tmp)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(nr, a)
+    d = (r * np.cos(phi))[:, None] * a + (r * np.sin(phi))[:, None] * b + z[:, None] * nr
+    eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(o).max()
+    ray = mi.Ray3f(vectors(o + eps * nr, mi.Point3f), vectors(d, mi.Vector3f))
+    t = np.asarray(scene.ray_intersect_preliminary(ray).t, dtype=np.float64).reshape(-1)
+    far = np.isfinite(t) & (t > alpha)
+    g = np.bincount(src, weights=np.where(far, 1.0 / np.where(far, t, 1.0), 0.0),
+                    minlength=m) / k
+    return np.minimum(float(alpha), kappa / np.maximum(g, 1e-30))
+
+
 def gather_far_field(scene, solution, p, n, clusters, rays_per_cluster=128, seed=0,
                      reg=sh.DEFAULT_REG, cached=None):
     """Eq. 4: per cluster of ``clusters`` (:class:`Clusters`), ``rays_per_cluster`` gather
@@ -800,7 +860,8 @@ def gather_far_field(scene, solution, p, n, clusters, rays_per_cluster=128, seed
 
 def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
                          max_clusters=256, rays_per_cluster=128, seed=0, ambient=0.0,
-                         fake_gi=False, shading_points=None, cached=None):
+                         fake_gi=False, shading_points=None, cached=None,
+                         parallax: float = 0.0):
     """Steps 1–4 of the module docstring → :class:`RadianceCache`. ``fake_gi``: no shading
     points and no gather, only the constant ``ambient`` radiance (§8.1). ``shading_points``:
     the ``(p, n, rays)`` of :func:`collect_shading_points` when the caller already has them
@@ -814,7 +875,9 @@ def build_radiance_cache(scene, solution, alpha, sensor=None, max_points=4096,
     if shading_points is None:
         shading_points = collect_shading_points(scene, sensor, max_points, seed)
     p, n, shading_rays = shading_points
-    alpha, clusters = fit_clusters(p, alpha, max_clusters, seed, normals=n)
+    # clusters smaller than alpha where the far field lies near alpha (parallax_limits)
+    limits = parallax_limits(scene, p, n, alpha, parallax, seed=seed) if parallax > 0 else None
+    alpha, clusters = fit_clusters(p, alpha, max_clusters, seed, normals=n, limits=limits)
     center, radius = clusters.center.reshape(-1, 3), clusters.radius.reshape(-1)
     coeffs, rays = gather_far_field(scene, solution, p, n, clusters, rays_per_cluster, seed,
                                     cached=cached)
@@ -871,6 +934,8 @@ class CacheSettings:
     radiosity: RadiositySettings = RadiositySettings(max_patches=2048, elements_per_patch=4)
     max_points: int = 4096
     max_clusters: int = 1024
+    #: clusters split further to at most this / (mean 1/t of far hits) (:func:`parallax_limits`)
+    parallax: float = 0.0
     rays_per_cluster: int = 128
     #: patches whose reflected radiosity is this many times the cached patches' mean are not
     #: cached (:func:`bright_receivers`)
@@ -996,6 +1061,7 @@ def _build_cache(scene, settings: CacheSettings, seed: int, sensor=None,
     cache = build_radiance_cache(scene, solution, alpha, sensor=sensor, shading_points=points,
                                  max_points=settings.max_points,
                                  max_clusters=settings.max_clusters,
+                                 parallax=settings.parallax,
                                  rays_per_cluster=settings.rays_per_cluster, seed=seed,
                                  ambient=settings.ambient if settings.fake_gi else 0.0,
                                  fake_gi=settings.fake_gi or sensor is None, cached=cached)

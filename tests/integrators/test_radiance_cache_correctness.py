@@ -32,7 +32,7 @@ import mi_twopass  # noqa: F401
 import mi_twopass.integrators.radiance_cache  # noqa: F401  (registers the plugin)
 from mi_twopass.evaluation.statistics import block_means
 from mi_twopass.integrators.radiance_cache import BIAS_BOUND  # the stated bias: 15 %
-from mi_twopass.prepass.sh_cache import BRIGHT_CONTRAST, fit_clusters
+from mi_twopass.prepass.sh_cache import BRIGHT_CONTRAST, fit_clusters, parallax_limits
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import hard_scenes as hs  # noqa: E402
@@ -231,6 +231,65 @@ def test_cluster_budget_grows_alpha():
         assert max(np.linalg.norm(p[c] - p[c].mean(axis=0), axis=1).max()
                    for c in clusters) <= a * (1 + 1e-9)
         assert (a == 0.1) == (budget == 1024)
+
+
+def test_cluster_limits_per_point():
+    """fit_clusters' limits: every cluster within the smallest limit of its points (and within
+    alpha); alpha as without them where the budget suffices, grown (limits with it, never below
+    alpha) where it does not."""
+    rng = np.random.default_rng(2)
+    p = rng.random((400, 3)) * [2.0, 2.0, 0.1]
+    limits = np.where(p[:, 0] < 1.0, 0.05, 1.0)  # tight on one half; alpha bounds the other
+    a1, plain = fit_clusters(p, 0.2, 4096)
+    a, tight = fit_clusters(p, 0.2, 4096, limits=limits)
+    assert a == a1 == 0.2 and len(tight) > len(plain)
+    bound = np.minimum(limits, 0.2)
+    for k, ids in enumerate(tight.members()):
+        assert tight.radius[k] <= bound[ids].min() * (1 + 1e-9)
+    # the extra clusters are where the limits are tight: (0.2 / 0.05)² more there, about
+    left = lambda c: sum(1 for ids in c.members() if p[ids, 0].max() < 1.0)  # noqa: E731
+    right = lambda c: sum(1 for ids in c.members() if p[ids, 0].min() >= 1.0)  # noqa: E731
+    assert left(tight) >= 4 * left(plain) and right(tight) <= 1.5 * right(plain)
+    a_small, capped = fit_clusters(p, 0.2, 16, limits=limits)
+    assert len(capped) <= 16 and a_small > 0.2
+    f = a_small / 0.2
+    for k, ids in enumerate(capped.members()):
+        assert capped.radius[k] <= f * bound[ids].min() * (1 + 1e-9)
+
+
+def test_parallax_limits_follow_the_geometry():
+    """parallax_limits: a floor point under a plate at 1.5 alpha gets a limit below alpha, one
+    under open sky alpha itself; kappa 0 leaves alpha everywhere."""
+    d = {"type": "scene",
+         "floor": rect(T().rotate([1, 0, 0], -90).scale([10, 10, 1]), material("diffuse", 0.5)),
+         "plate": rect(T().translate([0, 0.3, 0]).rotate([1, 0, 0], 90).scale([1, 1, 1]),
+                       material("diffuse", 0.5))}
+    scene = mi.load_dict(d)
+    p = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 5.0]])
+    n = np.array([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    lim = parallax_limits(scene, p, n, alpha=0.2, kappa=0.1, rays=64)
+    assert lim[0] < 0.2 and lim[1] == 0.2
+    assert np.all(parallax_limits(scene, p, n, alpha=0.2, kappa=0.0) == 0.2)
+
+
+def test_parallax_reaches_the_cache():
+    """The XML's parallax splits the clusters of the built cache further (negative refused)."""
+    d = {"type": "scene", **walls(1.0, lambda k: material("diffuse", 0.6), skip=("front",))}
+    d["light"] = {"type": "sphere", "center": [0, 0.7, 0], "radius": 0.1,
+                  "emitter": {"type": "area", "radiance": rgb(20.0)}}
+    d["sensor"] = camera([0, 0, 3.5], [0, 0, 0], 16, fov=50)
+    scene = mi.load_dict(d)
+    counts = {}
+    for kappa in (0.0, 0.1):
+        integ = mi.load_dict({"type": "radiance_cache", **SMALL, "max_clusters": 256,
+                              "parallax": kappa})
+        mi.render(scene, integrator=integ, spp=1)
+        s = integ.structure
+        assert s.cache.radius.max() <= s.alpha * (1 + 1e-6)
+        counts[kappa] = s.cache.count
+    assert counts[0.1] > counts[0.0]
+    with pytest.raises(Exception, match="parallax"):
+        mi.load_dict({"type": "radiance_cache", "parallax": -1.0})
 
 
 def test_tiny_bright_light_with_a_small_cluster_budget():
