@@ -99,7 +99,9 @@ class TwoPassChooser(TwoPassIntegrator):
     ``integrator.stats`` holds the chosen estimator's statistics and ``twopass_choice`` (the
     composition), ``twopass_reason`` (the predicted figures that decided), ``twopass_candidates``
     (per candidate built: prepass seconds, seconds per spp, relative variance, bias², score),
-    ``twopass_skipped`` (per composition not built: why), ``twopass_bias_checks`` (per
+    ``twopass_skipped`` (per composition not built: why), ``twopass_best_case`` (per
+    composition with a prepass: the score it could at best reach, relMSE × seconds, from the
+    path pilot's parts; the order in which they were considered), ``twopass_bias_checks`` (per
     candidate tested again: samples per pixel, b², its standard error, outcome),
     ``twopass_probe`` (path's render time as probed: fixed part, seconds per spp, the
     render's; None where not probed), ``twopass_path_unsampled_share`` (above),
@@ -275,6 +277,7 @@ class TwoPassChooser(TwoPassIntegrator):
                     "score": m.score(d.spp)}
                 for n, m in d.measured.items()},
             "twopass_skipped": dict(d.skipped),
+            "twopass_best_case": dict(d.best_case),
             "twopass_fitted": {n: {"light_paths": f[0], "image_needs": f[1]}
                                for n, f in d.fitted.items()},
             "twopass_frozen": {n: [{"light_paths": k, "block_relmse": f.block,

@@ -128,6 +128,10 @@ def test_no_rex_without_caustics_and_stats_say_why():
     assert chosen in cands and len(cands) >= 2
     assert min(cands, key=lambda n: cands[n]["score"]) == chosen
     assert tp.stats["twopass_reason"].startswith(chosen)
+    # every composition with a prepass has its best case (the order they were considered in)
+    best = tp.stats["twopass_best_case"]
+    assert set(best) == {c.name for c in cost.COMPOSITIONS if c.needs_prepass}
+    assert all(v >= 0.0 for v in best.values())
     assert tp.stats["prepass_seconds"] >= tp.stats["pilot_seconds"] > 0
 
 
