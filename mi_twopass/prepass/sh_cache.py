@@ -770,6 +770,21 @@ class RadianceCache:
         return hit
 
 
+def _hemisphere_rays(scene, o, n, z, phi):
+    """Rays from the points ``o`` about their unit normals ``n`` (numpy, (m, 3)) in the
+    directions of hemisphere coordinates ``z`` = cos θ and ``phi`` (uniform over the
+    hemisphere where both are uniform), the origins offset along ``n`` relative to the scene's
+    size: ``(mi.Ray3f, directions (m, 3))``."""
+    r = np.sqrt(np.maximum(0.0, 1 - z * z))
+    tmp = np.where(np.abs(n[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    s = np.cross(n, tmp)
+    s /= np.linalg.norm(s, axis=1, keepdims=True)
+    t = np.cross(n, s)
+    d = (r * np.cos(phi))[:, None] * s + (r * np.sin(phi))[:, None] * t + z[:, None] * n
+    eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(o).max()
+    return mi.Ray3f(vectors(o + eps * n, mi.Point3f), vectors(d, mi.Vector3f)), d
+
+
 def parallax_limits(scene, p, n, alpha: float, kappa: float, rays: int = 16, seed: int = 0):
     """Per shading point (``p``, ``n``: (m, 3)), the widest cluster whose far field it may
     share: min(``alpha``, ``kappa`` / g) with g = mean over ``rays`` uniform hemisphere rays of
@@ -793,14 +808,7 @@ def parallax_limits(scene, p, n, alpha: float, kappa: float, rays: int = 16, see
     side = max(int(np.sqrt(k)), 1)
     z = (cell // side % side + rng.random(len(src))) / side
     phi = 2 * np.pi * ((cell % side) + rng.random(len(src))) / side
-    r = np.sqrt(np.maximum(0.0, 1 - z * z))
-    tmp = np.where(np.abs(nr[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    a = np.cross(nr, tmp)
-    a /= np.linalg.norm(a, axis=1, keepdims=True)
-    b = np.cross(nr, a)
-    d = (r * np.cos(phi))[:, None] * a + (r * np.sin(phi))[:, None] * b + z[:, None] * nr
-    eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(o).max()
-    ray = mi.Ray3f(vectors(o + eps * nr, mi.Point3f), vectors(d, mi.Vector3f))
+    ray, _ = _hemisphere_rays(scene, o, nr, z, phi)
     t = np.asarray(scene.ray_intersect_preliminary(ray).t, dtype=np.float64).reshape(-1)
     far = np.isfinite(t) & (t > alpha)
     g = np.bincount(src, weights=np.where(far, 1.0 / np.where(far, t, 1.0), 0.0),
@@ -832,16 +840,7 @@ def gather_far_field(scene, solution, p, n, clusters, rays_per_cluster=128, seed
     o, nn = p[src], n[src]
     # uniform hemisphere about nn: local (x, y, z) then the frame of nn
     u1, u2 = rng.random(len(src)), rng.random(len(src))
-    z = u1
-    r = np.sqrt(np.maximum(0.0, 1 - z * z))
-    phi = 2 * np.pi * u2
-    tmp = np.where(np.abs(nn[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    s = np.cross(nn, tmp)
-    s /= np.linalg.norm(s, axis=1, keepdims=True)
-    t = np.cross(nn, s)
-    d = (r * np.cos(phi))[:, None] * s + (r * np.sin(phi))[:, None] * t + z[:, None] * nn
-    eps = 1e-4 * scene_diagonal(scene) + 1e-5 * np.abs(o).max()
-    ray = mi.Ray3f(vectors(o + eps * nn, mi.Point3f), vectors(d, mi.Vector3f))
+    ray, d = _hemisphere_rays(scene, o, nn, u1, 2 * np.pi * u2)
     si = scene.ray_intersect(ray)
     # only a cached surface sends B_r/π: on any other the render traces the path on
     if cached is None:
