@@ -464,7 +464,7 @@ def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0, normal
             break
         lo, hi = hi, 2.0 * hi
         if float(np.min(base)) * hi > 4.0 * extent + alpha:
-            best = c  # one cluster always fits its own extent
+            best, _ = attempt(hi)  # one cluster always fits its own extent
             break
     for _ in range(6):
         mid = float(np.sqrt(lo * hi))
