@@ -239,7 +239,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
          up, alpha 0.67 m), clusters of size alpha blur its occlusion into bands of +20 % and
          −12 % of the image there; 0.1 (with ``max_clusters`` 4096) took them to +6–8 % and −1 %,
          and the bias part (``tools/bias_map.py``, 256², 2 × 256 spp) down by 9–39 % on five
-         of six scenes (veach-bidir, noise-bound, +1 %). It costs 1.7–2.3× the clusters,
+         of six scenes (veach-bidir, noise-bound, +1 %). It costs 1.6–2.4× the clusters,
          +0.05–0.07 s of prepass and about 10 % more render time per sample on the office and
          window_interior (docs/results/mis-plates-2026-11-28). Raise ``max_clusters`` with it,
          or alpha grows.
