@@ -442,13 +442,9 @@ def fit_clusters(p, alpha: float, max_clusters: int = 256, seed: int = 0, normal
         np.minimum(np.asarray(limits, dtype=np.float64).reshape(-1), alpha)
 
     def attempt(f):
-        c = cluster_labels(p, base * f if limits is not None else alpha * f, max_clusters,
-                           normals)
-        if len(c) == 0:
-            return c, True
+        c = cluster_labels(p, base * f, max_clusters, normals)
         bound = np.full(len(c), alpha * f)
-        if limits is not None:
-            np.minimum.at(bound, c.labels, base * f)
+        np.minimum.at(bound, c.labels, np.broadcast_to(base * f, c.labels.shape))
         return c, bool(np.all(c.radius <= bound * (1 + 1e-9)))
 
     clusters, ok = attempt(1.0)
