@@ -1,0 +1,67 @@
+"""What twopass builds and chooses, and why, per scene and samples per pixel.
+
+    .venv/bin/python tools/twopass_decisions.py scenes_xml/*.xml ../shared/scenes/*/*.xml \\
+        [--res 256] [--spp 64,256,1024] [--why]
+
+One render per (scene, spp) with a fresh ``twopass``, timed to the numpy copy. Prints one
+Markdown row each: the choice, the render's seconds, the pilot's and prepasses' seconds
+(``prepass_seconds``) and the candidates built. ``--why`` adds, under each row, every
+candidate's best case, measured score and variance, the reason each skipped one was not
+built and the bias tests of a suspect winner (``twopass_best_case``, ``twopass_candidates``,
+``twopass_skipped``, ``twopass_bias_checks``). Run two checkouts
+alternately (``PYTHONPATH``) to compare a change of the cost model
+(docs/results/rex-gate-2026-11-28).
+"""
+import argparse
+import time
+
+import drjit as dr
+import mitsuba as mi
+
+import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
+from mi_twopass.scenefile import load_scene, scene_label
+
+
+def short(name: str) -> str:
+    """``direct=spike,indirect=radiosity,caustics=off`` → ``spike + radiosity``."""
+    parts = dict(p.split("=") for p in name.split(","))
+    label = f"{parts['direct']} + {parts['indirect']}"
+    return label if parts["caustics"] == "off" else label + f" (caustics {parts['caustics']})"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scenes", nargs="+")
+    ap.add_argument("--res", type=int, default=256, help="film's longer side in pixels")
+    ap.add_argument("--spp", default="64,256,1024", help="comma-separated samples per pixel")
+    ap.add_argument("--why", action="store_true", help="best cases, scores and skip reasons")
+    a = ap.parse_args()
+    print("| scene | spp | choice | seconds | pilot + prepasses s | built |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for path in a.scenes:
+        scene = load_scene(path, film_res=a.res)
+        for spp in (int(s) for s in a.spp.split(",")):
+            integrator = mi.load_dict({"type": "twopass"})
+            t0 = time.perf_counter()
+            mi.render(scene, integrator=integrator, spp=spp).numpy()
+            dr.sync_thread()
+            seconds = time.perf_counter() - t0
+            s = integrator.stats
+            built = ", ".join(short(n) for n in s["twopass_candidates"])
+            print(f"| {scene_label(path)} | {spp} | {short(s['twopass_choice'])} | "
+                  f"{seconds:.2f} | {s['prepass_seconds']:.2f} | {built} |", flush=True)
+            if a.why:
+                for n, best in s["twopass_best_case"].items():
+                    m = s["twopass_candidates"].get(n)
+                    got = (f"score {m['score']:.3g}, variance {m['relative_variance']:.3g}"
+                           if m else s["twopass_skipped"].get(n, "not built"))
+                    print(f"    {short(n)}: best case {best:.3g}; {got}")
+                for n, checks in s["twopass_bias_checks"].items():
+                    for c in checks:
+                        b2 = "—" if c["bias2"] is None else f"{c['bias2']:.3g}"
+                        print(f"    bias test of {short(n)} at {c['samples_per_pixel']} spp: "
+                              f"b² {b2} ± {c['standard_error']:.2g}, {c['outcome']}")
+
+
+if __name__ == "__main__":
+    main()
