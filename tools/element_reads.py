@@ -109,24 +109,21 @@ def main():
 
     px, py = (int(v) for v in a.pixel.split(","))
     width, height = sensor.film().crop_size()
-    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((px + 0.5) / width, (py + 0.5) / height),
-                               mi.Point2f(0.5, 0.5))
-    si = scene.ray_intersect(ray)
-    x = np.asarray(si.p).ravel()
-    normal = np.asarray(si.sh_frame.n).ravel()
-    if np.dot(normal, np.asarray(ray.d).ravel()) > 0:  # the side the camera sees
-        normal = -normal
-    u = rng.random((a.rays, 2))
-    r, phi = np.sqrt(u[:, 0]), 2 * np.pi * u[:, 1]
-    frame = mi.Frame3f(mi.Vector3f(normal))
-    s_axis, t_axis = np.asarray(frame.s).ravel(), np.asarray(frame.t).ravel()
-    d = ((r * np.cos(phi))[:, None] * s_axis + (r * np.sin(phi))[:, None] * t_axis
-         + np.sqrt(1 - u[:, 0])[:, None] * normal)
-    o = np.broadcast_to(x + 1e-4 * normal, d.shape).copy()
-    hit = scene.ray_intersect(rays_of(o, d))
-    rid = np.asarray(solution.receiver_at(hit, hit.is_valid()))
-    read = np.asarray(solution.receiver_reflected_radiance(
-        solution.receiver_at(hit, hit.is_valid()), hit.is_valid(), hit.p)).reshape(3, -1).mean(0)
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(3, a.rays)
+    pixel = mi.Point2f((px + 0.5) / width, (py + 0.5) / height) + dr.zeros(mi.Point2f, a.rays)
+    camera_ray, _ = sensor.sample_ray(0.0, 0.5, pixel, mi.Point2f(0.5, 0.5))
+    first = scene.ray_intersect(camera_ray)
+    local = mi.warp.square_to_cosine_hemisphere(sampler.next_2d())
+    local = dr.select(mi.Frame3f.cos_theta(first.wi) < 0, -local, local)  # the side seen
+    gather = first.spawn_ray(first.to_world(local))
+    hit = scene.ray_intersect(gather)
+    x = np.asarray(first.p)[:, 0]
+    o, d = np.asarray(gather.o).T, np.asarray(gather.d).T
+    receiver = solution.receiver_at(hit, hit.is_valid())
+    rid = np.asarray(receiver)
+    read = np.asarray(solution.receiver_reflected_radiance(receiver, hit.is_valid(), hit.p)) \
+        .reshape(3, -1).mean(axis=0)
     on = np.isin(rid, ids)
     print(f"\nfrom pixel ({px}, {py}), first hit {x.round(3)}: {int(on.sum())} of {a.rays} rays "
           "land on them\n")
