@@ -6,11 +6,11 @@
 One render per (scene, spp) with a fresh ``twopass``, timed to the numpy copy. Prints one
 Markdown row each: the choice, the render's seconds, the pilot's and prepasses' seconds
 (``prepass_seconds``) and the candidates built. ``--why`` adds, under each row, every
-candidate's best case, measured score and variance, the reason each skipped one was not
-built and the bias tests of a suspect winner (``twopass_best_case``, ``twopass_candidates``,
-``twopass_skipped``, ``twopass_bias_checks``). Run two checkouts
-alternately (``PYTHONPATH``) to compare a change of the cost model
-(docs/results/rex-gate-2026-11-28).
+candidate's best case; its measured score, variance and image mean over path's pilot; the
+reason each skipped one was not built; and the bias tests of a suspect winner
+(``twopass_best_case``, ``twopass_candidates``, ``twopass_skipped``,
+``twopass_bias_checks``). Run two checkouts alternately (``PYTHONPATH``) to compare a change
+of the cost model (docs/results/rex-gate-2026-11-28).
 """
 import argparse
 import time
@@ -53,7 +53,8 @@ def main():
             if a.why:
                 for n, best in s["twopass_best_case"].items():
                     m = s["twopass_candidates"].get(n)
-                    got = (f"score {m['score']:.3g}, variance {m['relative_variance']:.3g}"
+                    got = (f"score {m['score']:.3g}, variance {m['relative_variance']:.3g}, "
+                           f"image mean over path's {m['mean_ratio']:.3f}"
                            if m else s["twopass_skipped"].get(n, "not built"))
                     print(f"    {short(n)}: best case {best:.3g}; {got}")
                 for n, checks in s["twopass_bias_checks"].items():
