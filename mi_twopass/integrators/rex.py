@@ -15,7 +15,7 @@ from ..prepass.rex_textures import (BUCKET_PIXELS, KIND_NONE, MAX_LEVEL, NO_SHAP
                                     RexSettings, photon_budget)
 from ..prepass.rex_textures import build as build_rexes
 from ..rays import spawn_ray
-from .base import TwoPassIntegrator, read_choice, read_float, read_int
+from .base import TwoPassIntegrator, read_bool, read_choice, read_float, read_int
 from .pathtrace import (by_component, next_hit, path_start, russian_roulette,
                         trace_until)
 
@@ -129,6 +129,19 @@ class RexIntegrator(TwoPassIntegrator):
     (``stats["photons"]`` after a render; its prepass 2.3–2.8 s warm at 256²). A scene seen
     mostly through non-Lambertian surfaces needs few.
 
+    **Light guide (opt-in).** Most photons of an open scene or of a sky outside a window never
+    reach a surface the camera sees (window_interior: 1.25 % deposits on seen rexes per photon
+    in the probe). With ``light_guide=true`` the probe's deposits per photon, per cell of each
+    light's quadtree square, set how many photons each leaf shoots (and each light, power ×
+    its mean), at least an eighth of the photon-weighted mean so that no photon weighs more
+    than 8× the useful ones; the estimate stays unbiased (every leaf still shoots ≥ 1 photon
+    per quadrant, weighted by its own count). A sample of 2^16 lanes of that final allocation
+    then measures its deposits per photon, and the automatic budget is set from it (the
+    probe's rate, taken over even emission, overstates the need up to 8× once the light tree
+    adapts). :mod:`mi_twopass.prepass.light_guide` has the rule and its ``check`` figures: it
+    halves the zoo's bias part, but window_interior's grows (deposit counts do not measure
+    the noise of photons of unequal weight), so it is not the default.
+
     **Cost.** Photons cost about one ray per bounce. The emission samples are made in Dr.Jit
     (no per-photon numpy), the light quadtree has at most 2^18 leaves, and the rex build sorts
     the records once by a Morton key so that each level costs its nodes, not its photons.
@@ -201,6 +214,12 @@ class RexIntegrator(TwoPassIntegrator):
        - |float|
        - Neighbouring light rays landing farther apart than this fraction of the scene's
          bounding-box diagonal (of its shapes' own bounds) split their node (default: 0.05).
+     * - light_guide
+       - |bool|
+       - true: share the photons out among the lights and their light-quadtree leaves by
+         the deposits on rexes the eye sees that the probe shoot measured per photon, and
+         measure the automatic budget on that allocation ("Light guide" above). Default:
+         false (by power, evenly over the leaves): the guide is not yet right everywhere.
      * - max_depth, rr_depth, seed, component
        -
        - As every mi_twopass integrator: path length (-1: unbounded; finite: at most max_depth
@@ -239,12 +258,13 @@ class RexIntegrator(TwoPassIntegrator):
         self.direct = read_choice(props, "direct", "shadow", DIRECT_MODES)
         self.light_levels = read_int(props, "light_levels", 3, minimum=0)
         self.light_split_dist = read_float(props, "light_split_dist", 0.05, minimum=0.0)
+        self.light_guide = read_bool(props, "light_guide", False)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
 
     def settings(self):
         return (self.photons, self.photons_per_pixel, self.split_limit, self.max_level,
                 self.bucket_pixels, self.direct, self.light_levels, self.light_split_dist,
-                self.max_depth, self.rr_depth)
+                self.light_guide, self.max_depth, self.rr_depth)
 
     # -- prepass ----------------------------------------------------------------------------
     def settings_photons(self, scene) -> int:
@@ -280,7 +300,8 @@ class RexIntegrator(TwoPassIntegrator):
                            max_level=self.max_level, bucket_pixels=self.bucket_pixels,
                            direct=self.direct, max_depth=self.max_depth, rr_depth=self.rr_depth,
                            light_levels=self.light_levels,
-                           light_split_dist=self.light_split_dist)
+                           light_split_dist=self.light_split_dist,
+                           light_guide=self.light_guide)
 
     def prepass(self, scene, seed):
         """Size pass, light pass and rex build (§3.4):

@@ -85,6 +85,7 @@ from ..scene.bounds import infinite_light_leaks, scene_bounds
 from ..scene.emission import emitter_rays
 from ..scene.lambertian import is_lambertian
 from ..seeds import hash31
+from .light_guide import LightGuide
 
 #: child index of a leaf
 LEAF = 0xFFFFFFFF
@@ -115,6 +116,9 @@ LEAF_PHOTONS = 16
 #: the light quadtrees of all emitters together have at most about this many leaves (pilot
 #: rays and numpy bookkeeping per node; more photons shoot more rounds per leaf)
 MAX_LIGHT_LEAVES = 1 << 18
+#: steps of the final shoot's search for a lane's leaf (at most 2^this leaves; the restricted
+#: quadtree's extra splits take a tree a little past MAX_LIGHT_LEAVES)
+LEAF_SEARCH_STEPS = 20
 #: a bucket holding more photons than this splits (the default of rex's ``split_limit``): 32,
 #: not 16, for the automatic budget's sake (CAP_FILL × split_limit photons per visible bucket):
 #: with 16 the office's rexes at 128² left a block relMSE of 1.8e-3, 3.3e-3, 2.2e-3 and 3.1e-3
@@ -157,6 +161,7 @@ _UV_SHAPES = ("Rectangle", "Sphere", "Disk", "Cylinder")
 
 # seeds of the independent streams, so that passes never share random numbers
 _SALT_SIZE, _SALT_PROBE, _SALT_PILOT, _SALT_PHOTON, _SALT_NUMPY, _SALT_PROBE_PHOTON = 1, 2, 3, 4, 5, 6
+_SALT_RATE_PHOTON = 7
 
 
 def depth_classes(max_depth: int) -> int:
@@ -190,6 +195,7 @@ class RexSettings:
     light_levels: int = 3
     light_split_dist: float = 0.05  # fraction of the bounding-box diagonal
     size_spp: int = 4
+    light_guide: bool = False  # photons shared out by the probe's yield (light_guide.py)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -573,8 +579,11 @@ def _pilot_trace(scene, tables, ray, sampler):
 
 @dr.syntax
 def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity, keep_direct,
-                  max_depth, rr_depth):
+                  max_depth, rr_depth, seen):
     """Photons from the lights: deposit Φ at every rex hit, scatter by the hit's BSDF.
+
+    Returns per photon its rays, whether its first ray hit the scene and its deposits on
+    rexes flagged in ``seen`` (a Bool per rex: the light guide's yield).
 
     Records (rex, u, v, Φ, depth k of the hit) go to slot ``scatter_inc(counter)`` when below
     ``capacity``. Φ is weighted by |cos θ_shading| / |cos θ_geometric| of the arriving photon:
@@ -590,6 +599,7 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
     depth = mi.UInt32(0)
     n_rays = mi.UInt32(0)
     first_hit = mi.Bool(False)
+    n_seen = mi.UInt32(0)
     active = dr.max(flux) > 0
     while dr.hint(active, label="rex_photons"):
         si = scene.ray_intersect(ray, active)
@@ -602,6 +612,8 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
         deposit = at_rex & (keep_direct | (depth > 0)) & (depth + 2 <= max_depth) \
             & (wi_geo != 0)
         slot = dr.scatter_inc(counter, mi.UInt32(0), deposit)
+        n_seen += dr.select(deposit & dr.gather(mi.Bool, seen, rex, deposit), mi.UInt32(1),
+                            mi.UInt32(0))
         write = deposit & (slot < capacity)
         dr.scatter(rec_rex, rex, slot, write)
         dr.scatter(rec_u, uv.x, slot, write)
@@ -641,7 +653,7 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
         survive = ~rr | (sampler.next_1d(rr) < q)
         beta = dr.select(rr, beta * dr.rcp(dr.maximum(q, 1e-30)), beta)
         active = alive & survive
-    return n_rays, first_hit
+    return n_rays, first_hit, n_seen
 
 
 class LightTree:
@@ -838,24 +850,38 @@ def build_light_tree(scene, tables, seen_rex, settings, seed, budgets, adapt_dim
 class FinalShoot:
     """The final photons of the light pass, generated in Dr.Jit batch by batch.
 
-    Emitter e owns the lanes [off_e, off_e+1): ``reps_e`` rounds of one photon per quadrant of
-    each of its light-quadtree leaves (leaf-major). A lane's adapted 2-D sample is jittered in its
+    Emitter e owns the lanes [off_e, off_e+1), leaf by leaf: ``reps_l`` rounds of one photon
+    per quadrant of each of its light-quadtree leaves l, reps_l the emitter's budget shared out
+    over its leaves by their importance (:class:`~mi_twopass.prepass.light_guide.LightGuide`;
+    evenly without one), at least 1. A lane's adapted 2-D sample is jittered in its
     quadrant; the other 2-D sample (the position on an area light, the disk of an environment)
     takes one stratum of a ⌈√c_e⌉² grid (c_e the emitter's lanes): lane k of the emitter the
     k-th of a random permutation of the strata (:func:`permute`, keyed per emitter; each lane's
     stratum uniform, hence unbiased, as the random padding of :func:`_padded`), jittered inside
     it. Nothing is built per photon in numpy."""
 
-    def __init__(self, tree, budgets, adapt_dim, seed):
+    def __init__(self, tree, budgets, adapt_dim, seed, importance=None):
         rng = np.random.default_rng(seed)
         E = len(budgets)
         leaves = np.nonzero(tree.leaf)[0]
         leaves = leaves[np.argsort(tree.em[leaves], kind="stable")]  # grouped by emitter
-        n_leaves = np.bincount(tree.em[leaves], minlength=E)
-        reps = np.maximum(1, np.round(budgets / np.maximum(4 * n_leaves, 1))).astype(np.int64)
-        per_em = 4 * reps * n_leaves
+        leaf_em = tree.em[leaves]
+        n_leaves = np.bincount(leaf_em, minlength=E)
+        # reps per leaf: the emitter's budget over its leaves, in proportion to the leaf's
+        # importance (light_guide.LightGuide; uniform without one), at least one per quadrant
+        g = np.ones(len(leaves)) if importance is None else np.asarray(importance)[leaves]
+        g_sum = np.bincount(leaf_em, weights=g, minlength=E)
+        share = g / np.maximum(g_sum[leaf_em], 1e-300)
+        reps = np.maximum(1, np.round(budgets[leaf_em] * share / 4.0)).astype(np.int64)
+        lanes = 4 * reps
+        self.leaf_reps = reps
+        self.leaf_lanes = lanes
+        per_em = np.bincount(leaf_em, weights=lanes, minlength=E).astype(np.int64)
         off = np.concatenate([[0], np.cumsum(per_em)]).astype(np.int64)
+        leaf_off = np.concatenate([[0], np.cumsum(lanes)]).astype(np.int64)
         self.lanes = int(off[-1])
+        if len(leaves) > 1 << LEAF_SEARCH_STEPS:
+            raise ValueError(f"{len(leaves)} light-tree leaves: at most 2^{LEAF_SEARCH_STEPS}")
         if self.lanes >= 1 << 32:
             raise ValueError(f"{self.lanes} photons: at most 2^32 - 1")
         m = np.ceil(np.sqrt(np.maximum(per_em, 1))).astype(np.int64)
@@ -866,8 +892,11 @@ class FinalShoot:
         def u32(a):
             return jit(mi.UInt32, np.asarray(a, np.uint32))
         self.E = E
+        self.n_leaves = len(leaves)
+        self.leaves = leaves
         self.d_off = u32(off)
-        self.d_leaf_off = u32(np.concatenate([[0], np.cumsum(n_leaves)]))
+        self.d_leaf_off = u32(leaf_off)
+        self.d_leaf_em = u32(leaf_em)
         self.d_reps = u32(reps)
         self.d_m, self.d_strata = u32(m), u32(strata)
         self.d_key = u32(rng.integers(0, 1 << 32, E, dtype=np.uint64))
@@ -875,21 +904,30 @@ class FinalShoot:
         self.d_lev, self.d_ix, self.d_iy = u32(tree.lev[leaves]), u32(tree.ix[leaves]), \
             u32(tree.iy[leaves])
 
-    def samples(self, start, size, sampler):
-        """(emitter, sample2, sample3, weight scale |quadrant| / reps) of lanes
-        [start, start + size); the jitter comes from ``sampler``."""
-        # the batch's first lane opaque: a literal start compiled a new kernel per batch and
-        # per photon budget (every render seed's budget differs), ~0.1 s each
-        g = dr.arange(mi.UInt32, size) + dr.opaque(mi.UInt32, int(start))
-        off = self.d_off
-        e = dr.binary_search(0, self.E - 1,
-                             lambda i: dr.gather(mi.UInt32, off, i + 1) <= g)
-        local = g - dr.gather(mi.UInt32, off, e)
+    def samples(self, start, size, sampler, stride=1):
+        """(emitter, sample2, sample3, weight scale |quadrant| / reps) of lanes start,
+        start + stride, ..., (size of them); the jitter comes from ``sampler``."""
+        # start and stride opaque: a literal start compiled a new kernel per batch and per
+        # photon budget (every render seed's budget differs), ~0.1 s each
+        g = dr.arange(mi.UInt32, size) * dr.opaque(mi.UInt32, int(stride)) \
+            + dr.opaque(mi.UInt32, int(start))
+        # the leaf holding lane g: a binary search of LEAF_SEARCH_STEPS steps whatever the
+        # leaf count (dr.binary_search unrolls log2 of it: a kernel per tree size and seed)
+        leaf_off = self.d_leaf_off
+        lo = mi.UInt32(0)
+        hi = dr.opaque(mi.UInt32, max(self.n_leaves - 1, 0))
+        for _ in range(LEAF_SEARCH_STEPS):
+            mid = (lo + hi) >> 1
+            right = dr.gather(mi.UInt32, leaf_off, mid + 1) <= g
+            lo = dr.select(right & (lo < hi), mid + 1, lo)
+            hi = dr.select(right | (lo >= hi), hi, mid)
+        leaf = lo
+        e = dr.gather(mi.UInt32, self.d_leaf_em, leaf)
+        local = g - dr.gather(mi.UInt32, self.d_off, e)
         # (divisors kept ≥ 1: LLVM divides masked-off lanes of a packet too, and an integer
         # division by zero there is a SIGFPE)
-        reps = dr.maximum(dr.gather(mi.UInt32, self.d_reps, e), 1)
-        leaf = dr.gather(mi.UInt32, self.d_leaf_off, e) + local // (4 * reps)
-        q = local & 3
+        reps = dr.maximum(dr.gather(mi.UInt32, self.d_reps, leaf), 1)
+        q = (g - dr.gather(mi.UInt32, leaf_off, leaf)) & 3
         lev = dr.gather(mi.UInt32, self.d_lev, leaf)
         h = dr.rcp(mi.Float(mi.UInt32(2) << lev))
         j = sampler.next_2d()
@@ -959,35 +997,44 @@ def emitter_budgets(power, photons: int):
     return np.where(share > 0, np.maximum(np.round(photons * share), 16), 0).astype(np.int64)
 
 
-def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, bar=None):
+def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_rex, bar=None,
+                  every=None):
     """Trace the photons of ``shoot`` (a :class:`FinalShoot`), :data:`PHOTON_BATCH` per Dr.Jit
-    launch; returns (records, rays traced, photons whose first ray hit the scene)."""
+    launch; returns (records, rays traced, photons whose first ray hit the scene, each photon's
+    deposits on the rexes ``seen_rex`` flags, in lane order). ``every`` = (first, stride):
+    only the lanes first, first + stride, ... (a systematic sample of the shoot)."""
     max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
     parts = {k: [] for k in empty_records()}
     rays = hits = 0
-    for b, start in enumerate(range(0, shoot.lanes, PHOTON_BATCH)):
-        size = min(PHOTON_BATCH, shoot.lanes - start)
+    yields = []
+    # one entry past the rexes: a gather from an empty array is refused even when masked
+    seen = jit(mi.Bool, np.append(np.asarray(seen_rex, bool), False))
+    first, stride = every or (0, 1)
+    n_lanes = len(range(first, shoot.lanes, stride))
+    for b, start in enumerate(range(0, n_lanes, PHOTON_BATCH)):
+        size = min(PHOTON_BATCH, n_lanes - start)
         capacity = 3 * size
         while True:
             sampler = _sampler(hash31(seed, salt, b), size)
-            em, s2, s3, scale = shoot.samples(start, size, sampler)
+            em, s2, s3, scale = shoot.samples(first + start * stride, size, sampler, stride)
             ray, w = emitter_rays(scene, tables.bounds, em, s2, s3)
             flux = dr.select(dr.isfinite(w), w, 0.0) * scale
             recs = (dr.zeros(mi.UInt32, capacity), dr.zeros(mi.Float, capacity),
                     dr.zeros(mi.Float, capacity), dr.zeros(mi.Float, 3 * capacity),
                     dr.zeros(mi.UInt32, capacity))
             counter = dr.zeros(mi.UInt32, 1)
-            n_rays, first_hit = _photon_trace(
+            n_rays, first_hit, n_seen = _photon_trace(
                 scene, tables, ray, flux, sampler, recs, counter,
                 dr.opaque(mi.UInt32, capacity),  # a literal compiled a kernel per batch size
-                mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth))
-            dr.eval(n_rays, first_hit, *recs)
+                mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth), seen)
+            dr.eval(n_rays, first_hit, n_seen, *recs)
             count = int(counter[0])
             if count <= capacity:
                 break
             capacity = count  # deterministic: the same seed gives the same records
         rays += int(dr.sum(n_rays)[0])
         hits += int(dr.count(first_hit)[0])
+        yields.append(np.asarray(n_seen, np.uint32))
         # compact records, 26 bytes each (copies: a view would keep the whole capacity alive)
         parts["rex"].append(np.asarray(recs[0], np.uint32)[:count].copy())
         parts["u"].append(np.asarray(recs[1], np.float32)[:count].copy())
@@ -998,10 +1045,30 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, bar=N
         if bar is not None:
             bar.update(size)
     records = {k: np.concatenate(v) if v else empty_records()[k] for k, v in parts.items()}
-    return records, rays, hits
+    return records, rays, hits, (np.concatenate(yields) if yields else np.zeros(0, np.uint32))
 
 
-def photon_need(scene, tables, seen_rex, need, settings, seed, power, adapt_dim, keep_direct):
+def probe_shoot(scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_direct):
+    """The probe shoot: :data:`PROBE_PHOTONS` stratified photons over a uniform light quadtree
+    (no adaptation). Returns (the light guide it measures, deposits per photon on rexes the eye
+    sees (``seen_rex``), all deposits per photon), or (None, 0, 0) when no light emits."""
+    budgets = emitter_budgets(power, PROBE_PHOTONS)
+    if budgets is None:
+        return None, 0.0, 0.0
+    tree, _ = build_light_tree(scene, tables, seen_rex, replace(settings, light_levels=0), seed,
+                               np.where(budgets > 0, np.maximum(budgets // LEAF_PHOTONS, 1), 0),
+                               adapt_dim, tables.bounds)
+    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 4))
+    records, _, _, yields = shoot_photons(scene, tables, shoot, settings, seed,
+                                          _SALT_PROBE_PHOTON, keep_direct, seen_rex)
+    n = max(shoot.lanes, 1)
+    leaves = shoot.leaves
+    guide = LightGuide.from_probe(len(power), tree.em[leaves], tree.lev[leaves], tree.ix[leaves],
+                                  tree.iy[leaves], shoot.leaf_lanes, yields, power)
+    return guide, float(yields.sum()) / n, float(len(records["rex"])) / n
+
+
+def photon_need(need, settings, power, guide, visible_rate, all_rate):
     """The automatic photon budget: enough photons that every rex bucket the image needs (the
     size pass's ``visible_buckets``, at the cap it sets from the pixel footprints) splits down
     to the cap and fills there: :data:`CAP_FILL` × ``split_limit`` photons each, the count past
@@ -1010,69 +1077,102 @@ def photon_need(scene, tables, seen_rex, need, settings, seed, power, adapt_dim,
     office's ceiling-lit walls mottled (8×8-block relMSE 6e-3 at 128², the bound 3e-3); with
     4 × 16 they were at the bound, hence :data:`SPLIT_LIMIT` = 32.
 
-    A probe shoot of :data:`PROBE_PHOTONS` stratified photons (no light-quadtree adaptation)
-    measures how many deposits a photon leaves on rexes the eye sees (``seen_rex``); the budget
-    is CAP_FILL × split_limit × visible_buckets / that rate, within [:data:`MIN_PHOTONS`,
-    :data:`MAX_AUTO_PHOTONS`] and so that the records stay below :data:`MAX_RECORDS` (memory).
-    Returns (photons, stats)."""
-    budgets = emitter_budgets(power, PROBE_PHOTONS)
+    The probe shoot (:func:`probe_shoot`) measures how many deposits a photon leaves on rexes
+    the eye sees; with the light guide on (``settings.light_guide``), the rate its allocation
+    is expected to reach (:meth:`~mi_twopass.prepass.light_guide.LightGuide.guided_rate`).
+    The budget is CAP_FILL × split_limit × visible_buckets / that rate, within
+    [:data:`MIN_PHOTONS`, :data:`MAX_AUTO_PHOTONS`] and so that the records stay below
+    :data:`MAX_RECORDS` (memory). Returns (photons, stats)."""
     stats = {"visible_pixels": float(need["visible_pixels"]),
              "visible_buckets": float(need["visible_buckets"])}
-    if budgets is None:
+    if guide is None:
         return MIN_PHOTONS, stats
-    tree, _ = build_light_tree(scene, tables, seen_rex, replace(settings, light_levels=0), seed,
-                               np.where(budgets > 0, np.maximum(budgets // LEAF_PHOTONS, 1), 0),
-                               adapt_dim, tables.bounds)
-    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 4))
-    records, _, _ = shoot_photons(scene, tables, shoot, settings, seed, _SALT_PROBE_PHOTON,
-                                  keep_direct)
-    n = max(shoot.lanes, 1)
-    seen = seen_rex[records["rex"]] if len(seen_rex) else np.zeros(0, bool)
-    visible_rate = float(np.count_nonzero(seen)) / n
-    all_rate = float(len(records["rex"])) / n
-    want = CAP_FILL * settings.split_limit * stats["visible_buckets"] / visible_rate \
-        if visible_rate > 0 else 0.0
+    rate = visible_rate
+    if settings.light_guide and guide.active:
+        rate = max(guide.guided_rate(power), visible_rate)
+        # the guide moves photons towards seen rexes: their other deposits may grow with them
+        all_rate = all_rate * rate / max(visible_rate, 1e-300)
+    want = CAP_FILL * settings.split_limit * stats["visible_buckets"] / rate \
+        if rate > 0 else 0.0
     photons = min(max(want, MIN_PHOTONS), MAX_AUTO_PHOTONS)
     if all_rate > 0:
         photons = max(min(photons, MAX_RECORDS / all_rate), MIN_PHOTONS)
     stats.update(photon_need=want, deposits_per_photon=all_rate,
-                 visible_deposits_per_photon=visible_rate)
+                 visible_deposits_per_photon=rate, probe_visible_deposits_per_photon=visible_rate,
+                 guided_visible_deposits_per_photon=rate)
     return int(photons), stats
 
 
 def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
     """The photons :func:`build` shoots with ``settings``: ``settings.photons``, or where
-    that is ≤ 0 the image's need (:func:`photon_need`; this runs the size pass and the probe
-    shoot, a small part of the prepass)."""
+    that is ≤ 0 the image's need (:func:`plan_shoot`; this runs the size pass, the probe shoot,
+    the light quadtrees and the rate sample: the light pass without its final photons)."""
     if settings.photons > 0:
         return int(settings.photons)
     tables = RexTables(scene)
     _, seen, _, need = size_pass(scene, tables, settings, seed, sensor)
-    power, adapt_dim = probe_emitters(scene, seed, tables.bounds)
-    return photon_need(scene, tables, seen, need, settings, seed, power, adapt_dim,
-                       settings.direct == "rex")[0]
+    shoot, _, _ = plan_shoot(scene, tables, seen, settings, seed, tables.bounds,
+                             settings.direct == "rex", need)
+    return MIN_PHOTONS if shoot is None else shoot.lanes
 
 
-def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None,
-               show_progress=True):
-    """Adapt the light quadtrees, then shoot the final photons; returns records and stats.
+def rescale_budget(scene, tables, seen_rex, settings, seed, shoot, keep_direct, deposits):
+    """The automatic budget, measured on the final shoot's own allocation: the probe shoot's
+    rate is that of even emission over a uniform tree, but the adapted light tree (and the
+    guide) send more photons where the eye looks (window_interior: 0.0125 deposits on seen
+    rexes per photon in the probe, 0.10 in the final shoot, 8× the photons the image needs).
+    A systematic sample of :data:`PROBE_PHOTONS` of the final shoot's lanes (random first
+    lane; these photons are not kept, so the final estimate stays independent of them)
+    measures its deposits on seen rexes and in all per photon; the budget is ``deposits`` (the
+    seen deposits the image needs) over the first, within [:data:`MIN_PHOTONS`,
+    :data:`MAX_AUTO_PHOTONS`] and below :data:`MAX_RECORDS` over the second.
+    Returns (photons, stats)."""
+    stride = max(1, shoot.lanes // PROBE_PHOTONS)
+    first = int(np.random.default_rng(hash31(seed, _SALT_NUMPY, 5)).integers(stride))
+    records, _, _, yields = shoot_photons(scene, tables, shoot, settings, seed,
+                                          _SALT_RATE_PHOTON, keep_direct, seen_rex,
+                                          every=(first, stride))
+    n = max(len(yields), 1)
+    visible, every_rate = float(yields.sum()) / n, float(len(records["rex"])) / n
+    photons = deposits / visible if visible > 0 else float(MIN_PHOTONS)
+    photons = min(max(photons, MIN_PHOTONS), MAX_AUTO_PHOTONS)
+    if every_rate > 0:
+        photons = max(min(photons, MAX_RECORDS / every_rate), MIN_PHOTONS)
+    return int(photons), {"photon_need": deposits / visible if visible > 0 else 0.0,
+                          "visible_deposits_per_photon": visible,
+                          "deposits_per_photon": every_rate}
+
+
+def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None):
+    """Everything of the light pass but the final photons: the probe shoot, the budget, the
+    light quadtrees and the final shoot's allocation. Returns (the :class:`FinalShoot`, or None
+    when no light emits; pilot rays; stats).
 
     ``settings.photons`` ≤ 0: the budget the image needs (:func:`photon_need`, from the size
-    pass's ``need``)."""
-    t0 = time.perf_counter()
+    pass's ``need``). ``settings.light_guide``: the photons are shared out among the lights
+    and the leaves of their quadtrees by the yield the probe shoot measured
+    (:mod:`mi_twopass.prepass.light_guide`), and the automatic budget is measured on that
+    allocation (:func:`rescale_budget`)."""
     power, adapt_dim = probe_emitters(scene, seed, bounds)
-    stats = {"emitters": len(power), "light_rays": 0, "pilot_rays": 0, "photons": 0,
-             "light_hit_percent": 0.0, "light_tree_leaves": 0, "light_tree_max_level": 0}
+    stats = {"emitters": len(power)}
     photons = settings.photons
+    guide = None
+    if photons <= 0 or settings.light_guide:
+        guide, visible_rate, all_rate = probe_shoot(scene, tables, seen_rex, settings, seed,
+                                                    power, adapt_dim, keep_direct)
     if photons <= 0:
-        photons, need_stats = photon_need(scene, tables, seen_rex, need or {
-            "visible_pixels": 0.0, "visible_buckets": 0.0}, settings, seed, power, adapt_dim,
-            keep_direct)
+        photons, need_stats = photon_need(need or {"visible_pixels": 0.0,
+                                                   "visible_buckets": 0.0},
+                                          settings, power, guide, visible_rate, all_rate)
         stats.update(need_stats)
-    budgets = emitter_budgets(power, photons)
+    if not (settings.light_guide and guide is not None and guide.active):
+        guide = None
+    stats["light_guide"] = guide is not None
+    # photons per light: by power, times the light's mean importance with the guide
+    share = power if guide is None else power * guide.emitter_importance()
+    budgets = emitter_budgets(share, photons)
     if budgets is None:
-        stats["light_seconds"] = time.perf_counter() - t0
-        return empty_records(), stats
+        return None, 0, stats
     # the light quadtree's leaves each shoot LEAF_PHOTONS photons (reps per quadrant), more
     # where the tree would pass MAX_LIGHT_LEAVES
     per_leaf = max(LEAF_PHOTONS, -(-int(budgets.sum()) // MAX_LIGHT_LEAVES))
@@ -1081,18 +1181,43 @@ def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
         np.where(budgets > 0, np.maximum(budgets // per_leaf, 1), 0), adapt_dim, bounds)
 
     # final shoot: every leaf afresh, one jittered photon per quadrant, `reps` times so that
-    # each emitter uses its budget
-    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2))
-    with progress(total=shoot.lanes, desc="rex light pass", unit="photon",
-                  show=show_progress) as bar:
-        records, rays, hits = shoot_photons(scene, tables, shoot, settings, seed, _SALT_PHOTON,
-                                            keep_direct, bar)
-    stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=shoot.lanes,
-                 light_hit_percent=100.0 * hits / max(shoot.lanes, 1),
-                 light_tree_leaves=int(np.count_nonzero(tree.leaf)),
+    # each emitter uses its budget (reps by the leaf's importance with the guide)
+    importance = None if guide is None else guide.importance(tree.em, tree.lev, tree.ix,
+                                                             tree.iy)
+    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2), importance)
+    if guide is not None and settings.photons <= 0 and stats.get("photon_need", 0) > 0:
+        photons, rate_stats = rescale_budget(
+            scene, tables, seen_rex, settings, seed, shoot, keep_direct,
+            CAP_FILL * settings.split_limit * stats["visible_buckets"])
+        stats.update(rate_stats)
+        shoot = FinalShoot(tree, emitter_budgets(share, photons), adapt_dim,
+                           hash31(seed, _SALT_NUMPY, 2), importance)
+    stats.update(light_tree_leaves=int(np.count_nonzero(tree.leaf)),
                  light_tree_max_level=int(tree.lev.max()) if len(tree.lev) else 0,
                  light_tree_min_level=int(tree.lev.min()) if len(tree.lev) else 0,
-                 light_tree_nodes=int(len(tree.lev)),
+                 light_tree_nodes=int(len(tree.lev)))
+    return shoot, pilot_rays, stats
+
+
+def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None,
+               show_progress=True):
+    """Plan the shoot (:func:`plan_shoot`), then shoot the final photons; returns records and
+    stats."""
+    t0 = time.perf_counter()
+    shoot, pilot_rays, plan = plan_shoot(scene, tables, seen_rex, settings, seed, bounds,
+                                         keep_direct, need)
+    stats = {"light_rays": 0, "pilot_rays": 0, "photons": 0, "light_hit_percent": 0.0,
+             "light_tree_leaves": 0, "light_tree_max_level": 0, **plan}
+    if shoot is None:
+        stats["light_seconds"] = time.perf_counter() - t0
+        return empty_records(), stats
+    with progress(total=shoot.lanes, desc="rex light pass", unit="photon",
+                  show=show_progress) as bar:
+        records, rays, hits, yields = shoot_photons(scene, tables, shoot, settings, seed,
+                                                    _SALT_PHOTON, keep_direct, seen_rex, bar)
+    stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=shoot.lanes,
+                 light_hit_percent=100.0 * hits / max(shoot.lanes, 1),
+                 final_visible_deposits_per_photon=float(yields.sum()) / max(shoot.lanes, 1),
                  light_seconds=time.perf_counter() - t0)
     return records, stats
 
