@@ -129,19 +129,21 @@ class RexIntegrator(TwoPassIntegrator):
     (``stats["photons"]`` after a render; its prepass 2.3–2.8 s warm at 256²). A scene seen
     mostly through non-Lambertian surfaces needs few.
 
-    **Light guide (opt-in).** Most photons of an open scene or of a sky outside a window never
-    reach a surface the camera sees (window_interior: 1.25 % deposits on seen rexes per photon
-    in the probe). With ``light_guide=true`` the probe's deposits per photon, per cell of each
-    light's quadtree square, set how many photons each leaf shoots (and each light, power ×
-    its mean), at least an eighth of the photon-weighted mean so that no photon weighs more
-    than 8× the useful ones; the estimate stays unbiased (every leaf still shoots ≥ 1 photon
-    per quadrant, weighted by its own count). A sample of 2^16 lanes of that final allocation
-    then measures its deposits per photon, and the automatic budget is set from it (the
-    probe's rate, taken over even emission, overstates the need up to 8× once the light tree
-    adapts). :mod:`mi_twopass.prepass.light_guide` has the rule and its ``check`` figures: the
-    zoo's rex needs 0.86 M photons instead of 6.3 M at 256² for the same bias part within its
-    noise, but window_interior's bias part grows from 3.5e-4 to 1.45e-3 (deposit counts do
-    not measure the noise of photons of unequal weight), so it is not the default.
+    **Light guide.** Most photons of an open scene or of a sky outside a window never reach a
+    surface the camera sees (window_interior: 1.25 % deposits on seen rexes per photon in the
+    probe). The probe's deposits per photon y, per cell of each light's quadtree square, set
+    how many photons each leaf shoots: in proportion to its area × √y (Neyman's allocation,
+    the fewest photons for a given variance of the seen deposits), at least an eighth of the
+    photon-weighted mean of √y; each light's budget follows its power × its mean √y. The
+    estimate stays unbiased: every leaf still shoots ≥ 1 photon per quadrant, weighted by its
+    own count. A sample of 2^16 lanes of that final allocation then measures its deposits per
+    photon, and the automatic budget is set from it (the probe's rate, over even emission,
+    was off up to 8× once the light tree adapted). ``check`` at 128 px, 64 spp against 16384
+    spp, two renders, bias parts without and with the guide: office 2.0e-3 → 7.2e-4,
+    veach-bidir 2.4e-3 → 1.5e-3, window_interior 3.5e-4 → 1.9e-4, mixed_room 1.5e-3 → 1.4e-3,
+    the others the same within their noise; at 256² the zoo's rex shoots 1.25 M photons
+    instead of 6.3 M, mixed_room's 5.5 M instead of 16.8 M
+    (:mod:`mi_twopass.prepass.light_guide` has the commands and the rules tried first).
 
     **Cost.** Photons cost about one ray per bounce. The emission samples are made in Dr.Jit
     (no per-photon numpy), the light quadtree has at most 2^18 leaves, and the rex build sorts
@@ -217,10 +219,10 @@ class RexIntegrator(TwoPassIntegrator):
          bounding-box diagonal (of its shapes' own bounds) split their node (default: 0.05).
      * - light_guide
        - |bool|
-       - true: share the photons out among the lights and their light-quadtree leaves by
-         the deposits on rexes the eye sees that the probe shoot measured per photon, and
-         measure the automatic budget on that allocation ("Light guide" above). Default:
-         false (by power, evenly over the leaves): the guide is not yet right everywhere.
+       - Share the photons out among the lights and their light-quadtree leaves by the
+         deposits on rexes the eye sees that the probe shoot measured per photon, and
+         measure the automatic budget on that allocation ("Light guide" above; default:
+         true). false: by power, evenly over the leaves (the rule before session 28).
      * - max_depth, rr_depth, seed, component
        -
        - As every mi_twopass integrator: path length (-1: unbounded; finite: at most max_depth
@@ -259,7 +261,7 @@ class RexIntegrator(TwoPassIntegrator):
         self.direct = read_choice(props, "direct", "shadow", DIRECT_MODES)
         self.light_levels = read_int(props, "light_levels", 3, minimum=0)
         self.light_split_dist = read_float(props, "light_split_dist", 0.05, minimum=0.0)
-        self.light_guide = read_bool(props, "light_guide", False)
+        self.light_guide = read_bool(props, "light_guide", True)
         self.debug = read_choice(props, "debug", "none", DEBUG_MODES)
 
     def settings(self):

@@ -12,25 +12,33 @@ themselves instead of by importons.
 The allocation keeps the estimate unbiased without a defensive mixture: the final shoot is
 stratified (every leaf, every quadrant of it, shoots ``reps`` ≥ 1 photons of weight
 |quadrant| / reps), so *any* positive count per leaf gives an unbiased flux estimate; the
-guide only chooses the counts. A leaf's count is proportional to its importance
+guide only chooses the counts. A leaf of area a (in the light's sample square) gets photons in
+proportion to a·g, its importance
 
-    g = max(y, FLOOR · ȳ_w),   ȳ_w = Σ p·y² / Σ p·y   (p the light's power, over probe cells)
+    g = max(√y, FLOOR · ḡ_w),   ḡ_w = Σ p·y / Σ p·√y   (p the light's power, over probe cells)
 
-ȳ_w is the yield of the cells that shoot most photons, so that no photon weighs more than
-1/FLOOR times those. (A floor relative to the plain mean ȳ let window_interior's few lucky
-photons from cells the probe saw as dark weigh 300× the others: its block relMSE's bias part
-went from 3.5e-4 to 4.9e-3.) Across lights the budgets follow power × mean g, which shares the
-photons of a scene with many lights out to the ones whose light the image shows.
+a·√y is Neyman's allocation: with n_c photons of weight a_c/n_c and y_c seen deposits each, the
+variance of the seen flux is ∝ Σ a_c² y_c / n_c, least for n_c ∝ a_c √y_c. ḡ_w is the √y of
+the cells that shoot most photons, so that no photon weighs more than 1/FLOOR times those.
+Across lights the budgets follow power × mean g.
 
-Status (session 28): opt-in (``rex``'s ``light_guide``). Measured with ``python -m
-mi_twopass check SCENE --res 128 --spp 64 --ref-spp 16384 --renders 2 --integrators
-rex,rex:light_guide=true`` (the bias part of the 8×8-block relMSE, the default first, then
-guided; the bound is 3e-3): zoo 1.2e-4 ± 4.8e-4 and 4.1e-4 ± 5.1e-4 (the same within its
-noise), caustic 4.9e-4 and 4.8e-4, mixed_room 1.5e-3 and 2.3e-3, office 2.0e-3 and 2.5e-3,
-window_interior 3.5e-4 and 1.45e-3. At 256² the zoo's rex shoots 0.86 M photons instead of
-6.3 M (its prepass 1.2 s against 4.7 s in one run beside a CI job). Deposit counts do not
-measure the noise of photons of unequal weight, so the budget rule that counts them
-(4 × split_limit per bucket) fills buckets less well with the guide on three scenes.
+Measured with ``python -m mi_twopass check SCENE --res 128 --spp 64 --ref-spp 16384 --renders
+2 --integrators rex:light_guide=false,rex`` (the bias part of the 8×8-block relMSE, the bound
+3e-3; session 28, each pair in one sitting except the first five, whose light_guide=false rows
+came from an earlier run of the same command): office 2.0e-3 → 7.2e-4, window_interior 3.5e-4
+→ 1.9e-4, mixed_room 1.5e-3 → 1.4e-3, zoo 1.2e-4 → 2.6e-4 (± 5e-4 both), caustic 4.9e-4 →
+4.3e-4, veach-bidir 2.4e-3 → 1.5e-3, Cornell box 8.0e-5 → 6.0e-5, furnace 1.2e-4 → 6.0e-5,
+tut-cbox 5.6e-5 → 6.0e-5, many_lights −3.2e-4 → −3.9e-4 (± 4.5e-4 both).
+
+Rules tried first and not kept (same command):
+- g = y with its floor at FLOOR × the plain mean of y, and leaves' counts ∝ g alone (not
+  × area, so the light tree's fine leaves kept their extra photons): window_interior's bias
+  part 4.9e-3, out of bounds (a few photons from cells the probe saw as dark weighed 300× the
+  others);
+- g = y with the photon-weighted floor, counts ∝ g: window_interior 1.45e-3, mixed_room
+  2.3e-3, office 2.5e-3 (the weights' spread: the seen deposits' effective count
+  (Σw)²/Σw² per deposit was 0.05 of the count on window_interior, 0.19 evenly, 0.45 with
+  this rule).
 """
 from __future__ import annotations
 
@@ -93,17 +101,17 @@ class LightGuide:
             grid[iy[mine], ix[mine]] = leaf_yield[mine]
             level[e] = lv
             yields[e] = grid
-        # g = y, at least FLOOR × the photon-weighted mean of y (Σ g² / Σ g: the yield of the
+        # g = √y, at least FLOOR × the photon-weighted mean of √y (Σ g² / Σ g: that of the
         # cells that shoot most photons), so that no photon weighs more than 1/FLOOR times
-        # those (√y, Neyman's allocation for a Bernoulli yield, measured the same in check)
+        # those
         p = np.where(np.isfinite(power) & (power > 0), power, 0.0)
         num = den = 0.0
         for e in np.nonzero((level >= 0) & (p > 0))[0]:
-            r = yields[e]
+            r = np.sqrt(yields[e])
             num += p[e] * (r * r).mean()
             den += p[e] * r.mean()
         floor = FLOOR * num / den if den > 0 else 0.0
-        imps = [None if g is None else (np.maximum(g, floor) if floor > 0
+        imps = [None if g is None else (np.maximum(np.sqrt(g), floor) if floor > 0
                                         else np.ones_like(g)) for g in yields]
         return cls(level, [None if g is None else _sat(g) for g in yields],
                    [None if g is None else _sat(g) for g in imps], floor)
@@ -142,7 +150,8 @@ class LightGuide:
 
     def guided_rate(self, power) -> float:
         """Deposits on seen rexes per photon expected when the photons are shared out by
-        importance (budgets by power × mean g, cells by g within a light)."""
+        importance (budgets by power × mean g, cells by g within a light: the probe's cells
+        are of equal area)."""
         p = np.where(np.isfinite(power) & (power > 0), power, 0.0)
         num = den = 0.0
         for e in np.nonzero((self.level >= 0) & (p > 0))[0]:

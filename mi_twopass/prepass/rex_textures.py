@@ -195,7 +195,7 @@ class RexSettings:
     light_levels: int = 3
     light_split_dist: float = 0.05  # fraction of the bounding-box diagonal
     size_spp: int = 4
-    light_guide: bool = False  # photons shared out by the probe's yield (light_guide.py)
+    light_guide: bool = True  # photons shared out by the probe's yield (light_guide.py)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -867,9 +867,11 @@ class FinalShoot:
         leaves = leaves[np.argsort(tree.em[leaves], kind="stable")]  # grouped by emitter
         leaf_em = tree.em[leaves]
         n_leaves = np.bincount(leaf_em, minlength=E)
-        # reps per leaf: the emitter's budget over its leaves, in proportion to the leaf's
-        # importance (light_guide.LightGuide; uniform without one), at least one per quadrant
-        g = np.ones(len(leaves)) if importance is None else np.asarray(importance)[leaves]
+        # reps per leaf: the emitter's budget over its leaves evenly, or with a guide in
+        # proportion to the leaf's area × importance (light_guide.LightGuide: Neyman's
+        # allocation), at least one per quadrant
+        g = np.ones(len(leaves)) if importance is None else \
+            np.asarray(importance)[leaves] * np.ldexp(1.0, -2 * tree.lev[leaves])
         g_sum = np.bincount(leaf_em, weights=g, minlength=E)
         share = g / np.maximum(g_sum[leaf_em], 1e-300)
         reps = np.maximum(1, np.round(budgets[leaf_em] * share / 4.0)).astype(np.int64)

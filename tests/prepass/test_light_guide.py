@@ -44,18 +44,18 @@ def test_importance_has_a_floor_and_rates_follow_the_allocation():
     power = np.array([1.0, 1.0])
     guide = LightGuide.from_probe(2, *uniform_probe([useful, dark]), power=power)
     assert guide.active
-    # the floor: FLOOR × the photon-weighted mean yield Σy²/Σy = 16 / 4
-    assert guide.floor == pytest.approx(FLOOR * 4.0)
+    # g = √y; the floor: FLOOR × the photon-weighted mean of √y, Σy / Σ√y = 4 / 2
+    assert guide.floor == pytest.approx(FLOOR * 2.0)
     g = guide.importance(np.array([0, 0, 1]), np.array([1, 1, 1]), np.array([1, 0, 0]),
                          np.array([0, 0, 0]))
-    assert g == pytest.approx([4.0, 0.5, 0.5])
+    assert g == pytest.approx([2.0, 0.25, 0.25])
     # no photon weighs more than 1/FLOOR times those of the cells that shoot most
     assert g.max() / g.min() == pytest.approx(1 / FLOOR)
     # lights share photons by power × mean importance: the dark light keeps the floor
-    assert guide.emitter_importance() == pytest.approx([(4.0 + 3 * 0.5) / 4, 0.5])
+    assert guide.emitter_importance() == pytest.approx([(2.0 + 3 * 0.25) / 4, 0.25])
     # the deposits per photon expected under that allocation; shooting evenly, the useful
     # cell has an eighth of the photons: 0.5 deposits per photon
-    assert guide.guided_rate(power) == pytest.approx((4.0 * 4.0 / 4) / (1.375 + 0.5))
+    assert guide.guided_rate(power) == pytest.approx((2.0 * 4.0 / 4) / (0.6875 + 0.25))
     assert guide.guided_rate(power) > 4 * 0.5
 
 
