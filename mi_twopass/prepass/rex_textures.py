@@ -30,7 +30,9 @@ The build (:func:`build`) runs three steps, each a Dr.Jit wavefront:
    of the light's photon budget (shared among lights by power; the nodes of the deepest level
    send no pilot, nothing would read it); then every leaf shoots its final photons afresh, ``reps``
    jittered photons per quadrant (unbiased: the tree depends only on the pilot rays), each
-   carrying Φ = weight · |quadrant| / reps.
+   carrying Φ = weight · |quadrant| / reps. With the light guide (the default,
+   :mod:`mi_twopass.prepass.light_guide`) a leaf's reps follow its area × √(the probe shoot's
+   deposits on seen rexes per photon there), and each light's budget its power × its mean √.
    Photons follow delta and glossy bounces (``bsdf.sample`` in ``TransportMode.Importance``:
    Fresnel-weighted reflection or refraction) and, at every diffuse vertex, deposit their flux and
    continue diffusely with Russian roulette: L(S*D)*S*E is complete (the simple alternative to
