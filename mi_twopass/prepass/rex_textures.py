@@ -163,7 +163,6 @@ _UV_SHAPES = ("Rectangle", "Sphere", "Disk", "Cylinder")
 
 # seeds of the independent streams, so that passes never share random numbers
 _SALT_SIZE, _SALT_PROBE, _SALT_PILOT, _SALT_PHOTON, _SALT_NUMPY, _SALT_PROBE_PHOTON = 1, 2, 3, 4, 5, 6
-_SALT_RATE_PHOTON = 7
 
 
 def depth_classes(max_depth: int) -> int:
@@ -908,13 +907,12 @@ class FinalShoot:
         self.d_lev, self.d_ix, self.d_iy = u32(tree.lev[leaves]), u32(tree.ix[leaves]), \
             u32(tree.iy[leaves])
 
-    def samples(self, start, size, sampler, stride=1):
-        """(emitter, sample2, sample3, weight scale |quadrant| / reps) of lanes start,
-        start + stride, ..., (size of them); the jitter comes from ``sampler``."""
-        # start and stride opaque: a literal start compiled a new kernel per batch and per
-        # photon budget (every render seed's budget differs), ~0.1 s each
-        g = dr.arange(mi.UInt32, size) * dr.opaque(mi.UInt32, int(stride)) \
-            + dr.opaque(mi.UInt32, int(start))
+    def samples(self, start, size, sampler):
+        """(emitter, sample2, sample3, weight scale |quadrant| / reps) of lanes
+        [start, start + size); the jitter comes from ``sampler``."""
+        # the batch's first lane opaque: a literal start compiled a new kernel per batch and
+        # per photon budget (every render seed's budget differs), ~0.1 s each
+        g = dr.arange(mi.UInt32, size) + dr.opaque(mi.UInt32, int(start))
         # the leaf holding lane g: a binary search of LEAF_SEARCH_STEPS steps whatever the
         # leaf count (dr.binary_search unrolls log2 of it: a kernel per tree size and seed)
         leaf_off = self.d_leaf_off
@@ -1001,26 +999,22 @@ def emitter_budgets(power, photons: int):
     return np.where(share > 0, np.maximum(np.round(photons * share), 16), 0).astype(np.int64)
 
 
-def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_rex, bar=None,
-                  every=None):
+def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_rex, bar=None):
     """Trace the photons of ``shoot`` (a :class:`FinalShoot`), :data:`PHOTON_BATCH` per Dr.Jit
     launch; returns (records, rays traced, photons whose first ray hit the scene, each photon's
-    deposits on the rexes ``seen_rex`` flags, in lane order). ``every`` = (first, stride):
-    only the lanes first, first + stride, ... (a systematic sample of the shoot)."""
+    deposits on the rexes ``seen_rex`` flags, in lane order)."""
     max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
     parts = {k: [] for k in empty_records()}
     rays = hits = 0
     yields = []
     # one entry past the rexes: a gather from an empty array is refused even when masked
     seen = jit(mi.Bool, np.append(np.asarray(seen_rex, bool), False))
-    first, stride = every or (0, 1)
-    n_lanes = len(range(first, shoot.lanes, stride))
-    for b, start in enumerate(range(0, n_lanes, PHOTON_BATCH)):
-        size = min(PHOTON_BATCH, n_lanes - start)
+    for b, start in enumerate(range(0, shoot.lanes, PHOTON_BATCH)):
+        size = min(PHOTON_BATCH, shoot.lanes - start)
         capacity = 3 * size
         while True:
             sampler = _sampler(hash31(seed, salt, b), size)
-            em, s2, s3, scale = shoot.samples(first + start * stride, size, sampler, stride)
+            em, s2, s3, scale = shoot.samples(start, size, sampler)
             ray, w = emitter_rays(scene, tables.bounds, em, s2, s3)
             flux = dr.select(dr.isfinite(w), w, 0.0) * scale
             recs = (dr.zeros(mi.UInt32, capacity), dr.zeros(mi.Float, capacity),
@@ -1093,58 +1087,34 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate):
         return MIN_PHOTONS, stats
     rate = visible_rate
     if settings.light_guide and guide.active:
-        rate = max(guide.guided_rate(power), visible_rate)
+        # within 1-5 % of what the final shoot then deposits (window_interior, caustic, the
+        # zoo, the Cornell box, mixed_room, the office at 256²: the leaves' counts follow their
+        # area, so the probe's cells predict them)
+        rate = guide.guided_rate(power)
         # the guide moves photons towards seen rexes: their other deposits may grow with them
-        all_rate = all_rate * rate / max(visible_rate, 1e-300)
+        all_rate = all_rate * max(rate / max(visible_rate, 1e-300), 1.0)
     want = CAP_FILL * settings.split_limit * stats["visible_buckets"] / rate \
         if rate > 0 else 0.0
     photons = min(max(want, MIN_PHOTONS), MAX_AUTO_PHOTONS)
     if all_rate > 0:
         photons = max(min(photons, MAX_RECORDS / all_rate), MIN_PHOTONS)
     stats.update(photon_need=want, deposits_per_photon=all_rate,
-                 visible_deposits_per_photon=rate, probe_visible_deposits_per_photon=visible_rate,
-                 guided_visible_deposits_per_photon=rate)
+                 visible_deposits_per_photon=rate, probe_visible_deposits_per_photon=visible_rate)
     return int(photons), stats
 
 
 def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
     """The photons :func:`build` shoots with ``settings``: ``settings.photons``, or where
-    that is ≤ 0 the image's need (:func:`plan_shoot`; this runs the size pass, the probe shoot,
-    the light quadtrees and the rate sample: the light pass without its final photons)."""
+    that is ≤ 0 the image's need (:func:`photon_need`; this runs the size pass and the probe
+    shoot, a small part of the prepass)."""
     if settings.photons > 0:
         return int(settings.photons)
     tables = RexTables(scene)
     _, seen, _, need = size_pass(scene, tables, settings, seed, sensor)
-    shoot, _, _ = plan_shoot(scene, tables, seen, settings, seed, tables.bounds,
-                             settings.direct == "rex", need)
-    return MIN_PHOTONS if shoot is None else shoot.lanes
-
-
-def rescale_budget(scene, tables, seen_rex, settings, seed, shoot, keep_direct, deposits):
-    """The automatic budget, measured on the final shoot's own allocation: the probe shoot's
-    rate is that of even emission over a uniform tree, but the adapted light tree (and the
-    guide) send more photons where the eye looks (window_interior: 0.0125 deposits on seen
-    rexes per photon in the probe, 0.10 in the final shoot, 8× the photons the image needs).
-    A systematic sample of :data:`PROBE_PHOTONS` of the final shoot's lanes (random first
-    lane; these photons are not kept, so the final estimate stays independent of them)
-    measures its deposits on seen rexes and in all per photon; the budget is ``deposits`` (the
-    seen deposits the image needs) over the first, within [:data:`MIN_PHOTONS`,
-    :data:`MAX_AUTO_PHOTONS`] and below :data:`MAX_RECORDS` over the second.
-    Returns (photons, stats)."""
-    stride = max(1, shoot.lanes // PROBE_PHOTONS)
-    first = int(np.random.default_rng(hash31(seed, _SALT_NUMPY, 5)).integers(stride))
-    records, _, _, yields = shoot_photons(scene, tables, shoot, settings, seed,
-                                          _SALT_RATE_PHOTON, keep_direct, seen_rex,
-                                          every=(first, stride))
-    n = max(len(yields), 1)
-    visible, every_rate = float(yields.sum()) / n, float(len(records["rex"])) / n
-    photons = deposits / visible if visible > 0 else float(MIN_PHOTONS)
-    photons = min(max(photons, MIN_PHOTONS), MAX_AUTO_PHOTONS)
-    if every_rate > 0:
-        photons = max(min(photons, MAX_RECORDS / every_rate), MIN_PHOTONS)
-    return int(photons), {"photon_need": deposits / visible if visible > 0 else 0.0,
-                          "visible_deposits_per_photon": visible,
-                          "deposits_per_photon": every_rate}
+    power, adapt_dim = probe_emitters(scene, seed, tables.bounds)
+    probe = probe_shoot(scene, tables, seen, settings, seed, power, adapt_dim,
+                        settings.direct == "rex")
+    return photon_need(need, settings, power, *probe)[0]
 
 
 def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None):
@@ -1155,8 +1125,7 @@ def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     ``settings.photons`` ≤ 0: the budget the image needs (:func:`photon_need`, from the size
     pass's ``need``). ``settings.light_guide``: the photons are shared out among the lights
     and the leaves of their quadtrees by the yield the probe shoot measured
-    (:mod:`mi_twopass.prepass.light_guide`), and the automatic budget is measured on that
-    allocation (:func:`rescale_budget`)."""
+    (:mod:`mi_twopass.prepass.light_guide`)."""
     power, adapt_dim = probe_emitters(scene, seed, bounds)
     stats = {"emitters": len(power)}
     photons = settings.photons
@@ -1189,13 +1158,6 @@ def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     importance = None if guide is None else guide.importance(tree.em, tree.lev, tree.ix,
                                                              tree.iy)
     shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2), importance)
-    if guide is not None and settings.photons <= 0 and stats.get("photon_need", 0) > 0:
-        photons, rate_stats = rescale_budget(
-            scene, tables, seen_rex, settings, seed, shoot, keep_direct,
-            CAP_FILL * settings.split_limit * stats["visible_buckets"])
-        stats.update(rate_stats)
-        shoot = FinalShoot(tree, emitter_budgets(share, photons), adapt_dim,
-                           hash31(seed, _SALT_NUMPY, 2), importance)
     stats.update(light_tree_leaves=int(np.count_nonzero(tree.leaf)),
                  light_tree_max_level=int(tree.lev.max()) if len(tree.lev) else 0,
                  light_tree_min_level=int(tree.lev.min()) if len(tree.lev) else 0,
