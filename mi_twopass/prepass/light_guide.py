@@ -57,17 +57,6 @@ def _sat(grid):
     return sat
 
 
-def _block_mean(sat, lp, lev, ix, iy):
-    """Mean of a 2^lp-square grid (given by its summed-area table) over light-tree nodes."""
-    finer = lev >= lp
-    down = np.where(finer, lev - lp, 0)
-    up = np.where(finer, 0, lp - lev)
-    x0 = np.where(finer, ix >> down, ix << up)
-    y0 = np.where(finer, iy >> down, iy << up)
-    s = np.left_shift(1, up)
-    return (sat[y0 + s, x0 + s] - sat[y0, x0 + s] - sat[y0 + s, x0] + sat[y0, x0]) / (s * s)
-
-
 @dataclass
 class LightGuide:
     """Per emitter, square grids over the light quadtree's adapted 2-D sample at the probe's
@@ -122,16 +111,26 @@ class LightGuide:
         return self.floor > 0
 
     def _nodes(self, tables, em, lev, ix, iy):
+        """Mean of each emitter's grid (``tables``: its summed-area tables) over the nodes'
+        squares, all emitters at once (one flat array of the tables, no loop over lights)."""
         em = np.asarray(em, np.int64)
         lev, ix, iy = (np.asarray(a, np.int64) for a in (lev, ix, iy))
-        out = np.zeros(len(em))
-        for e in np.unique(em):
-            if self.level[e] < 0:
-                continue
-            mine = np.nonzero(em == e)[0]
-            out[mine] = _block_mean(tables[e], int(self.level[e]), lev[mine], ix[mine],
-                                    iy[mine])
-        return out
+        side = np.array([0 if t is None else t.shape[0] for t in tables], np.int64)  # 2^l + 1
+        start = np.concatenate([[0], np.cumsum(side * side)[:-1]])
+        flat = np.concatenate([t.ravel() for t in tables if t is not None] or [np.zeros(1)])
+        lp = np.maximum(self.level[em], 0)
+        finer = lev >= lp
+        down = np.where(finer, lev - lp, 0)
+        up = np.where(finer, 0, lp - lev)
+        x0 = np.where(finer, ix >> down, ix << up)
+        y0 = np.where(finer, iy >> down, iy << up)
+        s = np.left_shift(1, up)
+        w, base = np.maximum(side[em], 1), start[em]
+
+        def at(y, x):
+            return flat[np.minimum(base + y * w + x, len(flat) - 1)]
+        total = at(y0 + s, x0 + s) - at(y0, x0 + s) - at(y0 + s, x0) + at(y0, x0)
+        return np.where(self.level[em] >= 0, total / (s * s), 0.0)
 
     def node_yield(self, em, lev, ix, iy) -> np.ndarray:
         """Mean probe yield over the square of each light-tree node (any level)."""
