@@ -9,6 +9,13 @@ sees (the size pass's ``seen``) per photon: the visual importance of Peter & Pie
 ("Importance Driven Construction of Photon Maps", EGWR 1998), measured by the photons
 themselves instead of by importons.
 
+The radiosity prepass has its own guide for the same idea (:mod:`mi_twopass.prepass.emission_guide`:
+cells of the emitters' primary sample space, 4-D for a sky, drawn from a fitted density mixed
+with Mitsuba's own, scored by camera importance). rex keeps Heckbert's light quadtree, whose
+leaves stratify each light, so this guide sets every leaf's photon count instead of drawing
+cells; it shares that module's Neyman rule (density ∝ √ of the mean squared score), not its
+code.
+
 The allocation keeps the estimate unbiased without a defensive mixture: the final shoot is
 stratified (every leaf, every quadrant of it, shoots ``reps`` ≥ 1 photons of weight
 |quadrant| / reps), so *any* positive count per leaf gives an unbiased flux estimate; the
