@@ -141,8 +141,8 @@ class RexIntegrator(TwoPassIntegrator):
     on six scenes). ``check`` at 128 px, 64 spp against 16384
     spp, two renders, bias parts without and with the guide: office 2.0e-3 → 7.2e-4,
     veach-bidir 2.4e-3 → 1.5e-3, window_interior 3.5e-4 → 1.9e-4, mixed_room 1.5e-3 → 1.4e-3,
-    the others the same within their noise; at 256² the zoo's rex shoots 1.25 M photons
-    instead of 6.3 M, mixed_room's 5.5 M instead of 16.8 M
+    the others the same within their noise; at 256² the zoo's rex shoots 1.23 M photons
+    instead of 6.3 M, mixed_room's 5.56 M instead of 16.8 M
     (:mod:`mi_twopass.prepass.light_guide` has the commands and the rules tried first).
 
     **Cost.** Photons cost about one ray per bounce. The emission samples are made in Dr.Jit
