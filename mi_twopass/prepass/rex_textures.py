@@ -113,6 +113,10 @@ MAX_DEPTH_CLASSES = 8
 PHOTON_RR_MAX = 0.999
 #: final photons per Dr.Jit launch
 PHOTON_BATCH = 1 << 20
+#: a batch's record buffer holds at least this many records per photon
+RECORDS_PER_PHOTON = 3
+#: and the records per photon expected (the probe's, then the last batch's) times this
+RECORD_MARGIN = 1.15
 #: final photons per light-quadtree leaf (4 per quadrant): the tree's size is the budget / this
 LEAF_PHOTONS = 16
 #: the light quadtrees of all emitters together have at most about this many leaves (pilot
@@ -999,19 +1003,33 @@ def emitter_budgets(power, photons: int):
     return np.where(share > 0, np.maximum(np.round(photons * share), 16), 0).astype(np.int64)
 
 
-def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_rex, bar=None):
+def record_capacity(size: int, rate=None) -> int:
+    """Record slots for a batch of ``size`` photons that deposit about ``rate`` records each
+    (``None``: not known, :data:`RECORDS_PER_PHOTON`): the rate plus
+    :data:`RECORD_MARGIN`, and at least :data:`RECORDS_PER_PHOTON` per photon. A batch whose
+    records overflow it is traced again with room for all of them (the records do not depend
+    on the capacity), so a low guess costs a second trace of the batch."""
+    per_photon = RECORDS_PER_PHOTON if rate is None or not math.isfinite(rate) \
+        else max(RECORDS_PER_PHOTON, RECORD_MARGIN * float(rate))
+    return int(math.ceil(size * per_photon)) + 64
+
+
+def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_rex, bar=None,
+                  rate=None):
     """Trace the photons of ``shoot`` (a :class:`FinalShoot`), :data:`PHOTON_BATCH` per Dr.Jit
     launch; returns (records, rays traced, photons whose first ray hit the scene, each photon's
-    deposits on the rexes ``seen_rex`` flags, in lane order)."""
+    deposits on the rexes ``seen_rex`` flags, in lane order, batches traced twice). ``rate``: the records a photon is
+    expected to deposit (the probe shoot's), which sizes the first batch's record buffer
+    (:func:`record_capacity`); each later batch's follows the batches before it."""
     max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
     parts = {k: [] for k in empty_records()}
-    rays = hits = 0
+    rays = hits = retraced = 0
     yields = []
     # one entry past the rexes: a gather from an empty array is refused even when masked
     seen = jit(mi.Bool, np.append(np.asarray(seen_rex, bool), False))
     for b, start in enumerate(range(0, shoot.lanes, PHOTON_BATCH)):
         size = min(PHOTON_BATCH, shoot.lanes - start)
-        capacity = 3 * size
+        capacity = record_capacity(size, rate)
         while True:
             sampler = _sampler(hash31(seed, salt, b), size)
             em, s2, s3, scale = shoot.samples(start, size, sampler)
@@ -1029,7 +1047,9 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
             count = int(counter[0])
             if count <= capacity:
                 break
+            retraced += 1
             capacity = count  # deterministic: the same seed gives the same records
+        rate = count / size
         rays += int(dr.sum(n_rays)[0])
         hits += int(dr.count(first_hit)[0])
         yields.append(np.asarray(n_seen, np.uint32))
@@ -1043,7 +1063,8 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
         if bar is not None:
             bar.update(size)
     records = {k: np.concatenate(v) if v else empty_records()[k] for k, v in parts.items()}
-    return records, rays, hits, (np.concatenate(yields) if yields else np.zeros(0, np.uint32))
+    return records, rays, hits, (np.concatenate(yields) if yields else np.zeros(0, np.uint32)), \
+        retraced
 
 
 def probe_shoot(scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_direct):
@@ -1057,7 +1078,7 @@ def probe_shoot(scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_
                                np.where(budgets > 0, np.maximum(budgets // LEAF_PHOTONS, 1), 0),
                                adapt_dim, tables.bounds)
     shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 4))
-    records, _, _, yields = shoot_photons(scene, tables, shoot, settings, seed,
+    records, _, _, yields, _ = shoot_photons(scene, tables, shoot, settings, seed,
                                           _SALT_PROBE_PHOTON, keep_direct, seen_rex)
     n = max(shoot.lanes, 1)
     leaves = shoot.leaves
@@ -1138,6 +1159,8 @@ def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
                                                    "visible_buckets": 0.0},
                                           settings, power, guide, visible_rate, all_rate)
         stats.update(need_stats)
+    elif guide is not None:
+        stats["deposits_per_photon"] = all_rate
     if not (settings.light_guide and guide is not None and guide.active):
         guide = None
     stats["light_guide"] = guide is not None
@@ -1173,15 +1196,18 @@ def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     shoot, pilot_rays, plan = plan_shoot(scene, tables, seen_rex, settings, seed, bounds,
                                          keep_direct, need)
     stats = {"light_rays": 0, "pilot_rays": 0, "photons": 0, "light_hit_percent": 0.0,
+             "retraced_batches": 0,
              "light_tree_leaves": 0, "light_tree_max_level": 0, **plan}
     if shoot is None:
         stats["light_seconds"] = time.perf_counter() - t0
         return empty_records(), stats
     with progress(total=shoot.lanes, desc="rex light pass", unit="photon",
                   show=show_progress) as bar:
-        records, rays, hits, yields = shoot_photons(scene, tables, shoot, settings, seed,
-                                                    _SALT_PHOTON, keep_direct, seen_rex, bar)
+        records, rays, hits, yields, retraced = shoot_photons(
+            scene, tables, shoot, settings, seed, _SALT_PHOTON, keep_direct, seen_rex, bar,
+            rate=plan.get("deposits_per_photon"))
     stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=shoot.lanes,
+                 retraced_batches=retraced,
                  light_hit_percent=100.0 * hits / max(shoot.lanes, 1),
                  final_visible_deposits_per_photon=float(yields.sum()) / max(shoot.lanes, 1),
                  light_seconds=time.perf_counter() - t0)

@@ -12,6 +12,7 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.evaluation.statistics import block_z_scores
+from mi_twopass.prepass import rex_textures
 from mi_twopass.prepass.rex_textures import AREA_SPHERE, RexSettings, RexTables
 from mi_twopass.prepass.rex_textures import build as build_rexes
 from mi_twopass.scene.lambertian import is_lambertian
@@ -511,3 +512,23 @@ def test_automatic_photon_budget_follows_the_image():
     assert st["photon_need"] == pytest.approx(
         4 * settings.split_limit * st["visible_buckets"] / st["visible_deposits_per_photon"])
     assert photon_budget(scene(32, look_at_floor=False), settings) == MIN_PHOTONS
+
+
+def test_record_buffers_follow_the_probe_and_a_retrace_changes_nothing(monkeypatch):
+    """A closed box of albedo 0.8 leaves about 5 records per photon, more than the fixed 3 per
+    photon the light pass once reserved (each batch was then traced twice). The buffer now
+    follows the probe shoot's rate, so nothing is traced twice; a buffer made too small on
+    purpose is traced again and gives the same records, so the rexes are identical."""
+    scene = mi.load_file(os.path.join(SCENES, "furnace.xml"), res=16, albedo=0.8, Le=1.0)
+    settings = RexSettings(photons=100_000, direct="rex")
+    pre = build_rexes(scene, settings, seed=3)
+    assert pre.stats["deposits_per_photon"] > rex_textures.RECORDS_PER_PHOTON
+    assert pre.stats["retraced_batches"] == 0
+    monkeypatch.setattr(rex_textures, "RECORDS_PER_PHOTON", 1)
+    monkeypatch.setattr(rex_textures, "RECORD_MARGIN", 0.5)
+    again = build_rexes(scene, settings, seed=3)
+    assert again.stats["retraced_batches"] == 1
+    a, b = pre.rexes.leaves(), again.rexes.leaves()
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key])
