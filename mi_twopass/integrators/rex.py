@@ -110,24 +110,40 @@ class RexIntegrator(TwoPassIntegrator):
     long times path tracing, unbiased, wins.
 
     **Photon budget: what the image needs.** Unless ``photons`` (or ``photons_per_pixel``) is
-    given, the size pass counts the rex buckets the image needs — for every pixel that sees a
-    rex (through specular and glossy bounces), (pixel side / bucket side at its cap)², ¼–1
-    bucket per visible pixel with ``bucket_pixels`` = 2 — and a probe shoot of 65536 photons
-    measures how many deposits a photon leaves on the rexes the eye sees. The budget is
-    4 × split_limit × that bucket count / that rate: the photons with which every bucket the eye
-    sees splits down to the pixel footprint and fills there to the soft cap's threshold (past
-    that, photons refine buckets the screen cannot show). With split_limit photons per bucket
-    instead of 4×, the office's ceiling-lit walls were mottled (8×8-block relMSE 6e-3 at 128²),
-    and with 4 × 16 they were at the bound (``split_limit``'s default is 32 since session 12).
-    ``bucket_pixels`` was 1 until session 18: buckets ½–1 pixel wide, 4× the photons, no error
-    the harness or ``check`` could see (:data:`~mi_twopass.prepass.rex_textures.BUCKET_PIXELS`
-    has the figures). The budget lies within [2^16, 2^24] photons and keeps the records below
-    8M (memory). So a closed Cornell box (2.4 deposits per photon) shoots 0.62M photons at 128²
-    and 2.5M at 256², the office 0.40M at 128² and 1.6M at 256² (``bench --prepass`` records
-    them), and ``caustic.xml``, whose photons mostly leave the scene (0.14 deposits each), 9.4M
-    at 128² and the 2^24 cap at 256²
-    (``stats["photons"]`` after a render; its prepass 2.3–2.8 s warm at 256²). A scene seen
-    mostly through non-Lambertian surfaces needs few.
+    given, the budget is the larger of two counts, both divided by the deposits a photon leaves
+    on rexes the eye sees (a probe shoot of 65536 photons measures them):
+
+    - *noise*: the size pass records, for one eye sample per pixel, the rex it reads, its
+      bucket at the cap, the specular chain's throughput and what the pixel takes from
+      elsewhere (emitted light; direct light where shadow rays compute it, one emitter sample).
+      With the probe's deposits per size cell (Σw, Σw², each photon weighted as the light
+      guide will shoot it) that predicts the 8×8-block relMSE the rexes' photon noise leaves
+      in the image, ∝ 1/photons (``rex_textures.predicted_noise``: buckets sharing pixels
+      share their error, blocks over (mean² + ε) as ``check`` reads them). The budget holds it
+      to a third of ``check``'s bound (3e-3). Against the noise ``check --renders 2`` measured
+      it read 0.5–2.4× (window_interior to tut-cbox), and 0.7–0.9× against the photon noise
+      of renders in the test that pins it;
+    - *resolution*: ``split_limit`` photons per bucket the image needs (the size pass counts,
+      for every pixel that sees a rex through specular and glossy bounces, (pixel side /
+      bucket side at its cap)², ¼–1 bucket per visible pixel with ``bucket_pixels`` = 2), so
+      that buckets split down to the pixel footprint: with fewer, a sharp caustic blurs in
+      coarse buckets, which the noise model does not see (``caustic.xml`` read 0.17× its
+      prediction). Up to 4× that where the image's light is *sharp*, in proportion to its
+      share: the probe's deposits of photons that came from the light through delta bounces
+      only (a caustic, a sun patch through a glass pane, direct light kept in the rexes).
+      A sun patch through a pane at 32² (``tests/compose/test_unsampled.py``) read 1.15× its
+      light with a quarter of the photons, 1.06× with all of them.
+
+    Where pixels read more than 1 % of the image's radiance from whole rexes (rexes no larger
+    than their pixel: veach-bidir's lamp at 128², 3.2 %), the floor is the rule of sessions
+    12–28, 4 × split_limit photons per bucket: those reads converge only as photons split such
+    rexes past their cap, and veach-bidir's image mean read +0.98 % of the reference with the
+    noise budget alone against +0.64 % with that floor. The budget lies within [2^16, 2^24]
+    photons and keeps the records below 8M (memory). Photons at 128² / 256²
+    (``stats["photons"]``): PLACEHOLDER_COUNTS. A scene seen mostly through non-Lambertian
+    surfaces needs few. Session 28's rule (4 × split_limit per bucket everywhere) gave the
+    office's ceiling-lit walls 7e-4 of ``check``'s bias part and the Cornell box 6e-5: the
+    image's need differs tenfold between scenes at one fill, which the noise model measures.
 
     **Light guide.** Most photons of an open scene or of a sky outside a window never reach a
     surface the camera sees (window_interior: 1.25 % deposits on seen rexes per photon in the

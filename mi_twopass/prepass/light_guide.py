@@ -74,29 +74,38 @@ class LightGuide:
     yields: list  # per emitter, the yield grid (None if level < 0)
     importances: list  # per emitter, the importance grid g (None if level < 0)
     floor: float  # the importance every cell has at least (0: the guide is not active)
+    #: per emitter, the records (all deposits) per photon, as summed-area tables (None: not
+    #: measured)
+    deposits: list | None = None
 
     @classmethod
-    def from_probe(cls, n_emitters, em, lev, ix, iy, leaf_lanes, lane_yield, power):
+    def from_probe(cls, n_emitters, em, lev, ix, iy, leaf_lanes, lane_yield, power,
+                   lane_records=None):
         """The guide from a probe shoot over a *uniform* light tree (one level per emitter):
         leaf i of emitter ``em[i]`` at (``lev[i]``, ``ix[i]``, ``iy[i]``) shot ``leaf_lanes[i]``
-        photons, consecutive in ``lane_yield`` (each photon's deposits on seen rexes)."""
+        photons, consecutive in ``lane_yield`` (each photon's deposits on seen rexes) and in
+        ``lane_records`` (each photon's deposits anywhere; optional)."""
         level = np.full(n_emitters, -1, np.int64)
-        yields = [None] * n_emitters
         starts = np.concatenate([[0], np.cumsum(leaf_lanes)]).astype(np.int64)
-        sums = np.add.reduceat(lane_yield.astype(np.float64), starts[:-1]) \
-            if len(lane_yield) else np.zeros(len(em))
-        sums = np.where(leaf_lanes > 0, sums, 0.0)
-        leaf_yield = sums / np.maximum(leaf_lanes, 1)
-        for e in np.unique(em):
-            mine = em == e
-            lv = int(lev[mine].max())
-            if (lev[mine] != lv).any():
-                raise ValueError("the probe's light tree must be uniform per emitter")
-            n = 1 << lv
-            grid = np.zeros((n, n))
-            grid[iy[mine], ix[mine]] = leaf_yield[mine]
-            level[e] = lv
-            yields[e] = grid
+
+        def grids(per_lane):
+            sums = np.add.reduceat(per_lane.astype(np.float64), starts[:-1]) \
+                if len(per_lane) else np.zeros(len(em))
+            per_leaf = np.where(leaf_lanes > 0, sums, 0.0) / np.maximum(leaf_lanes, 1)
+            out = [None] * n_emitters
+            for e in np.unique(em):
+                mine = em == e
+                lv = int(lev[mine].max())
+                if (lev[mine] != lv).any():
+                    raise ValueError("the probe's light tree must be uniform per emitter")
+                n = 1 << lv
+                grid = np.zeros((n, n))
+                grid[iy[mine], ix[mine]] = per_leaf[mine]
+                level[e] = lv
+                out[e] = grid
+            return out
+        yields = grids(lane_yield)
+        deposits = grids(lane_records) if lane_records is not None else None
         # g = √y, at least FLOOR × the photon-weighted mean of √y (Σ g² / Σ g: that of the
         # cells that shoot most photons), so that no photon weighs more than 1/FLOOR times
         # those
@@ -110,7 +119,9 @@ class LightGuide:
         imps = [None if g is None else (np.maximum(np.sqrt(g), floor) if floor > 0
                                         else np.ones_like(g)) for g in yields]
         return cls(level, [None if g is None else _sat(g) for g in yields],
-                   [None if g is None else _sat(g) for g in imps], floor)
+                   [None if g is None else _sat(g) for g in imps], floor,
+                   None if deposits is None else
+                   [None if g is None else _sat(g) for g in deposits])
 
     @property
     def active(self) -> bool:
@@ -143,6 +154,11 @@ class LightGuide:
         """Mean probe yield over the square of each light-tree node (any level)."""
         return self._nodes(self.yields, em, lev, ix, iy)
 
+    def node_deposits(self, em, lev, ix, iy):
+        """Mean records (all deposits) per probe photon over the square of each light-tree
+        node; None where the probe did not count them."""
+        return None if self.deposits is None else self._nodes(self.deposits, em, lev, ix, iy)
+
     def importance(self, em, lev, ix, iy) -> np.ndarray:
         """Mean importance g over the square of each light-tree node (1 everywhere when the
         guide is not active)."""
@@ -153,6 +169,18 @@ class LightGuide:
         shoot)."""
         return np.array([t[-1, -1] / (t.shape[0] - 1) ** 2 if t is not None else 0.0
                          for t in self.importances])
+
+    def weight_scale(self, em, lev, ix, iy, power) -> np.ndarray:
+        """Per probe photon (its emitter and probe-grid cell), the weight a photon from there
+        has in the guided shoot over its weight in an even shoot of as many photons: the
+        cell's photons are Σp·ḡ / (Σp · g) times fewer (budgets ∝ power × mean g, cells ∝
+        g), each as much heavier, so its deposits' Σw² grows by that factor."""
+        p = np.where(np.isfinite(power) & (power > 0), power, 0.0)
+        shot = (self.level >= 0) & (p > 0)
+        mean_g = self.emitter_importance()
+        ratio = float(np.sum(p[shot] * mean_g[shot]) / np.sum(p[shot])) if shot.any() else 1.0
+        g = self.importance(em, lev, ix, iy)
+        return np.where(g > 0, ratio / np.where(g > 0, g, 1.0), 0.0)
 
     def guided_rate(self, power) -> float:
         """Deposits on seen rexes per photon expected when the photons are shared out by

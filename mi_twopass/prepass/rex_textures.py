@@ -82,9 +82,9 @@ import numpy as np
 from .. import units
 from ..host_arrays import jit
 from ..progress import progress
-from ..rays import spawn_ray
+from ..rays import shadow_ray, spawn_ray
 from ..scene.bounds import infinite_light_leaks, scene_bounds
-from ..scene.emission import emitter_rays
+from ..scene.emission import emitter_rays, has_infinite_emitters
 from ..scene.lambertian import is_lambertian
 from ..seeds import hash31
 from .light_guide import LightGuide
@@ -117,6 +117,16 @@ PHOTON_BATCH = 1 << 20
 RECORDS_PER_PHOTON = 3
 #: and the records per photon expected (the probe's, then the last batch's) times this
 RECORD_MARGIN = 1.15
+#: a batch whose records the probe's light-tree cells predict (:meth:`FinalShoot.
+#: expected_records`) reserves this many times them plus EXPECTED_SLACK per photon: a cell
+#: holds few probe photons, and window_interior's batches read up to 1.5× their prediction
+EXPECTED_MARGIN = 1.5
+EXPECTED_SLACK = 0.25
+#: the bit of a probe record's lane that marks sharp light (:func:`_photon_trace`)
+SHARP_BIT = 1 << 31
+#: the probe shoot's buffers hold this many records per photon (a closed room of albedo 0.8
+#: leaves 4–5; the probe is small, so room to spare costs little)
+PROBE_RECORDS = 8.0
 #: final photons per light-quadtree leaf (4 per quadrant): the tree's size is the budget / this
 LEAF_PHOTONS = 16
 #: the light quadtrees of all emitters together have at most about this many leaves (pilot
@@ -132,9 +142,29 @@ LEAF_SEARCH_STEPS = 20
 #: bound 3e-3), with 32 7.4e-4, 7.0e-4 and 1.2e-3 over three; the check's seconds (prepass
 #: and 64 spp) went from 1.6–2.6 s to 2.8–3.9 s
 SPLIT_LIMIT = 32
-#: the automatic budget fills every visible bucket at its cap to this × split_limit photons
-#: (the soft cap's threshold one level past the cap)
+#: without the noise model's inputs, the automatic budget fills every visible bucket at its
+#: cap to this × split_limit photons (the soft cap's threshold one level past the cap): the
+#: rule of sessions 12–28
 CAP_FILL = 4
+#: the automatic budget holds the block relMSE its photon noise is predicted to leave
+#: (:func:`predicted_noise`) to this share of ``check``'s bound. A third, because the
+#: prediction is that close and no closer: against the bias part ``check --renders 2``
+#: measured at 128², 64 spp with session 28's budget (session 29,
+#: docs/results/rex-noise-budget-2026-11-28), it read 0.5× on window_interior, 0.8× on
+#: mixed_room, 1.2–1.5× on the Cornell box, the office and the furnace, 2.4× on tut-cbox; so
+#: a prediction half the truth leaves two thirds of the bound to the noise. caustic.xml read
+#: 0.17×: its error is the blur of a sharp caustic in buckets the photons leave coarse,
+#: which the split floor of :func:`photon_need` answers
+NOISE_SHARE = 1.0 / 3.0
+#: where pixels read more than this share of the image's radiance from rexes at level 0 (a
+#: rex no larger than its pixel: one bucket, refined only past the size-pass cap, by the soft
+#: cap's 4^k rule), the automatic budget keeps CAP_FILL × split_limit photons per bucket as
+#: its floor. Those reads' bias falls as photons let such rexes split past the cap, which the
+#: noise model does not see: veach-bidir's lamp (3.2 % of its image; every other scene of
+#: scenes_xml/ and ../shared/scenes ≤ 0.3 %) read the image mean at +0.98 %, +0.77 %, +0.70 %
+#: and +0.64 % of the reference with 0.34M, 0.45M, 0.49M and 0.6M photons (three seeds each,
+#: ``check … --res 128 --renders 2 --seed S``; +0.60 % at 2.4M)
+WHOLE_REX_SHARE = 0.01
 #: the default of rex's ``bucket_pixels``: the size-pass cap stops at buckets at most this many
 #: pixels wide (more than half of it). 2, not 1: at 1 the buckets (½–1 pixel wide, 2.4 per
 #: visible pixel) asked 4× the photons for no error the harness or ``check`` could see, and
@@ -425,18 +455,51 @@ class RexTables:
 # ---------------------------------------------------------------------------------------------
 # Size pass (§3.4.1)
 # ---------------------------------------------------------------------------------------------
+class SizeHit:
+    """What an eye sample of the size pass found (:func:`_size_trace`), for the photon budget's
+    noise model (:func:`predicted_noise`): its first rex (``found``), with its (u, v), cap
+    level, world area per unit parameter area, the throughput of the specular chain that
+    reached it and the surface's albedo (channel mean); and ``known``, the radiance the eye
+    pass takes from elsewhere than the rexes where the chain ends (one sample of the emitted
+    and, where shadow rays compute it, the direct light)."""
+
+    DRJIT_STRUCT = {"rex": mi.UInt32, "uv": mi.Point2f, "level": mi.Float, "jac": mi.Float,
+                    "beta": mi.Float, "albedo": mi.Float, "known": mi.Float, "found": mi.Bool}
+
+    def __init__(self, rex=None, uv=None, level=None, jac=None, beta=None, albedo=None,
+                 known=None, found=None):
+        self.rex, self.uv, self.level, self.jac, self.beta = rex, uv, level, jac, beta
+        self.albedo, self.known, self.found = albedo, known, found
+
+
 @dr.syntax
-def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max_level, sampler):
-    """Follow delta/glossy bounces to the first rex hit; scatter-max its cap level + 1."""
+def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max_level, sampler,
+                shadow, modelled):
+    """Follow delta/glossy bounces to the first rex hit; scatter-max its cap level + 1.
+
+    Returns (rays, cap-level buckets per pixel, a :class:`SizeHit` per sample). ``shadow``
+    (a Bool): rexes hold no direct light, so the direct light at a rex hit is ``known``.
+    ``modelled`` (a Bool per sample): the samples whose ``known`` the noise model reads (one
+    per pixel, the others' stays 0).
+    Where the chain ends (a rex, another surface, or nothing), ``known`` adds the emitted
+    radiance there and, on a surface, one emitter sample of the direct light with its shadow
+    ray; the samples it draws come after the chain's, so the caps are those of the chain
+    alone."""
     ctx = mi.BSDFContext()
     ray = mi.Ray3f(ray)
     t_total = mi.Float(0.0)
     depth = mi.UInt32(0)
     n_rays = mi.UInt32(0)
     buckets = mi.Float(0.0)  # cap-level buckets per pixel where the ray met a rex
+    hit = SizeHit(rex=mi.UInt32(0), uv=mi.Point2f(0.0), level=mi.Float(0.0), jac=mi.Float(0.0),
+                  beta=mi.Float(0.0), albedo=mi.Float(0.0), known=mi.Float(0.0),
+                  found=mi.Bool(False))
+    throughput = mi.Float(1.0)
+    infinite = has_infinite_emitters(scene)
     active = mi.Bool(True)
     while dr.hint(active, label="rex_size_pass"):
         si = scene.ray_intersect(ray, active)
+        traced = mi.Bool(active)
         n_rays += dr.select(active, mi.UInt32(1), mi.UInt32(0))
         valid = active & si.is_valid()
         t_total += dr.select(valid, si.t, 0.0)
@@ -460,21 +523,37 @@ def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max
         # at most the whole square per pixel)
         per_pixel = dr.minimum(pixel, 1.0) * dr.exp2(level)
         buckets = dr.select(at_rex, dr.minimum(per_pixel * per_pixel, 1e6), buckets)
+        bsdf = si.bsdf(ray)
+        hit = dr.select(at_rex, SizeHit(
+            rex=rex, uv=uv, level=level, jac=J, beta=throughput,
+            albedo=units.channel_mean(bsdf.eval_diffuse_reflectance(si, at_rex)),
+            known=hit.known, found=mi.Bool(True)), hit)
         level = mi.UInt32(level)
         cell = tables.size_cell(rex, uv, at_rex)
         dr.scatter_reduce(dr.ReduceOp.Max, caps, level + 1, cell, at_rex)
 
-        bsdf = si.bsdf(ray)
         go_on = valid & ~at_rex & (tables.shape_index(si, valid) != NO_SHAPE) \
             & (depth + 1 < MAX_CHAIN)
         bs, w = bsdf.sample(ctx, si, sampler.next_1d(go_on), sampler.next_2d(go_on), go_on)
-        ray = spawn_ray(si, si.to_world(bs.wo), tables.scale)
+        ray_next = spawn_ray(si, si.to_world(bs.wo), tables.scale)
         depth += 1
         active = go_on & (bs.pdf > 0) & (dr.max(w) > 0)
         active &= ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse) | \
             mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta) | \
             mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy)
-    return n_rays, buckets
+        # where the chain ends: what the eye pass adds there besides the rex
+        ends = traced & ~active & modelled
+        lit = ends & valid & (~at_rex | shadow)
+        ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(lit), False, lit)
+        cast = lit & (ds.pdf != 0.0) & dr.any(em_weight != 0.0)
+        visible = cast & ~scene.ray_test(shadow_ray(si, ds, tables.scale, infinite), cast)
+        direct = bsdf.eval(ctx, si, si.to_local(ds.d), visible) * em_weight
+        emitted = si.emitter(scene).eval(si, ends)
+        hit.known = dr.select(ends, throughput * units.channel_mean(
+            emitted + dr.select(visible, direct, 0.0)), hit.known)
+        ray = ray_next
+        throughput *= units.channel_mean(w)
+    return n_rays, buckets, hit
 
 
 def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor=None):
@@ -484,7 +563,10 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
     Returns (cap level per size cell, seen per rex, eye rays traced, the image's need): the
     need is a dict of ``visible_pixels`` (pixels whose eye ray reaches a rex, through specular
     and glossy bounces) and ``visible_buckets`` (the rex buckets at the cap those pixels cover:
-    Σ over them of (pixel side / bucket side)², both in the rex's parameter square)."""
+    Σ over them of (pixel side / bucket side)², both in the rex's parameter square), the film's
+    ``(width, height)``, and for :func:`predicted_noise`, from the first eye sample of each
+    pixel, ``known`` (per pixel, :class:`SizeHit`'s) and ``hits``: numpy arrays of the
+    pixel index and the :class:`SizeHit` fields of those that met a rex."""
     if sensor is None:
         sensors = scene.sensors()
         sensor = sensors[0] if len(sensors) else None
@@ -498,20 +580,38 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
     n = w * h * spp
     sampler = _sampler(hash31(seed, _SALT_SIZE), n)
     idx = dr.arange(mi.UInt32, n)
-    pixel = idx // spp
-    pos = mi.Vector2f(mi.Float(pixel % w), mi.Float(pixel // w)) + sampler.next_2d()
+    # the lanes run sample by sample over the film: the first w·h are the noise model's, and
+    # only their packets sample emitters at the chain's end
+    # (the film's sizes opaque: as literals they compiled the size pass per resolution)
+    n_pixels, width = dr.opaque(mi.UInt32, w * h), dr.opaque(mi.UInt32, w)
+    pixel = idx % n_pixels
+    pos = mi.Vector2f(mi.Float(pixel % width), mi.Float(pixel // width)) + sampler.next_2d()
     pos = pos / mi.ScalarVector2f(w, h)
     ray, _ = sensor.sample_ray_differential(0.0, 0.5, mi.Point2f(pos), mi.Point2f(0.5, 0.5))
     spread_o = (ray.o_x - ray.o, ray.o_y - ray.o)
     spread_d = (ray.d_x - ray.d, ray.d_y - ray.d)
     caps = dr.zeros(mi.UInt32, tables.size_cells + 1)
-    n_rays, buckets = _size_trace(scene, tables, mi.Ray3f(ray), spread_o, spread_d, caps,
-                                  mi.Float(settings.bucket_pixels), float(settings.max_level),
-                                  sampler)
+    n_rays, buckets, hit = _size_trace(scene, tables, mi.Ray3f(ray), spread_o, spread_d, caps,
+                                       mi.Float(settings.bucket_pixels),
+                                       float(settings.max_level), sampler,
+                                       mi.Bool(settings.direct == "shadow"), idx < n_pixels)
+    dr.eval(caps, n_rays, buckets, hit)  # one launch of the loop (each read would run it again)
     caps_np = np.asarray(caps, np.int64)[:-1] - 1  # −1: unseen
     rays = int(dr.sum(n_rays)[0])
     need = {"visible_pixels": float(dr.count(buckets > 0)[0]) / spp,
-            "visible_buckets": float(dr.sum(buckets)[0]) / spp}
+            "visible_buckets": float(dr.sum(buckets)[0]) / spp,
+            "film": (w, h)}
+    # the first sample of each pixel: the budget's noise model
+    first = dr.arange(mi.UInt32, w * h)
+    hit = dr.gather(SizeHit, hit, first)
+    found = np.asarray(hit.found, bool)
+    need["known"] = np.asarray(hit.known, np.float64)
+    need["hits"] = {"pixel": np.flatnonzero(found)}
+    for name, value in (("rex", hit.rex), ("u", hit.uv.x), ("v", hit.uv.y),
+                        ("level", hit.level), ("jac", hit.jac), ("beta", hit.beta),
+                        ("albedo", hit.albedo)):
+        need["hits"][name] = np.asarray(value, np.int64 if name in ("rex", "level")
+                                        else np.float64)[found]
 
     # unseen cells of a seen rex take the rex's coarsest seen level; unseen rexes level 0
     rex_of_cell = np.repeat(np.arange(tables.count), 4 ** tables.rex_size_level.astype(np.int64))
@@ -595,7 +695,13 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
     a bucket then holds the irradiance that Mitsuba's diffuse BSDF integrates (in the shading
     frame), not the flux density across the geometric surface (they differ on meshes with
     interpolated normals)."""
-    rec_rex, rec_u, rec_v, rec_flux, rec_depth = records
+    rec_rex, rec_u, rec_v, rec_flux, rec_depth = records[:5]
+    # a sixth array: each record's lane (the probe's, for the budget's noise model), its top
+    # bit set where the photon came straight from the light through delta bounces only (sharp
+    # light: caustics, sun patches through glass, and direct light when kept)
+    rec_lane = records[5] if len(records) > 5 else None
+    lane = dr.arange(mi.UInt32, dr.width(ray.o)) if rec_lane is not None else None
+    sharp = mi.Bool(True)
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
     ctx_radiance = mi.BSDFContext()
     ray = mi.Ray3f(ray)
@@ -627,6 +733,8 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
         for c in range(3):
             dr.scatter(rec_flux, Phi[c], slot * 3 + c, write)
         dr.scatter(rec_depth, depth, slot, write)
+        if rec_lane is not None:
+            dr.scatter(rec_lane, lane | dr.select(sharp, mi.UInt32(SHARP_BIT), 0), slot, write)
 
         bsdf = si.bsdf(ray)
         bs, w = bsdf.sample(ctx, si, sampler.next_1d(valid), sampler.next_2d(valid), valid)
@@ -643,6 +751,7 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
         # the surface's own normal, a floor lit by a normal-mapped wall was 4.5 % too bright).
         corr = dr.abs((cos_wi * wo_geo) / dr.select(good, cos_wo * wi_geo, 1.0))
         smooth = good & ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        sharp &= ~smooth
         si_adj = mi.SurfaceInteraction3f(si)
         si_adj.wi = bs.wo
         f_adj = bsdf.eval(ctx_radiance, si_adj, si.wi, smooth)
@@ -865,7 +974,7 @@ class FinalShoot:
     stratum uniform, hence unbiased, as the random padding of :func:`_padded`), jittered inside
     it. Nothing is built per photon in numpy."""
 
-    def __init__(self, tree, budgets, adapt_dim, seed, importance=None):
+    def __init__(self, tree, budgets, adapt_dim, seed, importance=None, records=None):
         rng = np.random.default_rng(seed)
         E = len(budgets)
         leaves = np.nonzero(tree.leaf)[0]
@@ -887,6 +996,11 @@ class FinalShoot:
         off = np.concatenate([[0], np.cumsum(per_em)]).astype(np.int64)
         leaf_off = np.concatenate([[0], np.cumsum(lanes)]).astype(np.int64)
         self.lanes = int(off[-1])
+        # records expected before each leaf's first lane (``records``: per tree node, the
+        # records per photon the probe measured there)
+        self._lane_off = leaf_off
+        self._records_before = None if records is None else np.concatenate(
+            [[0.0], np.cumsum(lanes * np.asarray(records, np.float64)[leaves])])
         if len(leaves) > 1 << LEAF_SEARCH_STEPS:
             raise ValueError(f"{len(leaves)} light-tree leaves: at most 2^{LEAF_SEARCH_STEPS}")
         if self.lanes >= 1 << 32:
@@ -910,6 +1024,16 @@ class FinalShoot:
         self.d_adapt3 = jit(mi.Bool, np.asarray(adapt_dim) == 3)
         self.d_lev, self.d_ix, self.d_iy = u32(tree.lev[leaves]), u32(tree.ix[leaves]), \
             u32(tree.iy[leaves])
+
+    def expected_records(self, start, size):
+        """The records lanes [start, start + size) are expected to deposit (the probe's
+        records per photon of their leaves); None where the shoot was not given them. Lanes
+        run leaf by leaf and emitter by emitter, so a batch's rate follows the lights and
+        leaves it covers (mixed_room's batches: 0.01 to 4.4 records per photon)."""
+        if self._records_before is None:
+            return None
+        return float(np.diff(np.interp([start, start + size], self._lane_off,
+                                       self._records_before))[0])
 
     def samples(self, start, size, sampler):
         """(emitter, sample2, sample3, weight scale |quadrant| / reps) of lanes
@@ -1015,21 +1139,26 @@ def record_capacity(size: int, rate=None) -> int:
 
 
 def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_rex, bar=None,
-                  rate=None):
+                  rate=None, keep_lanes=False):
     """Trace the photons of ``shoot`` (a :class:`FinalShoot`), :data:`PHOTON_BATCH` per Dr.Jit
     launch; returns (records, rays traced, photons whose first ray hit the scene, each photon's
     deposits on the rexes ``seen_rex`` flags, in lane order, batches traced twice). ``rate``: the records a photon is
     expected to deposit (the probe shoot's), which sizes the first batch's record buffer
-    (:func:`record_capacity`); each later batch's follows the batches before it."""
+    (:func:`record_capacity`); each later batch's follows the batches before it.
+    ``keep_lanes``: the records also hold ``lane``, the photon's lane."""
     max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
     parts = {k: [] for k in empty_records()}
+    if keep_lanes:
+        parts["lane"] = []
     rays = hits = retraced = 0
     yields = []
     # one entry past the rexes: a gather from an empty array is refused even when masked
     seen = jit(mi.Bool, np.append(np.asarray(seen_rex, bool), False))
     for b, start in enumerate(range(0, shoot.lanes, PHOTON_BATCH)):
         size = min(PHOTON_BATCH, shoot.lanes - start)
-        capacity = record_capacity(size, rate)
+        expected = shoot.expected_records(start, size)
+        capacity = record_capacity(size, rate) if expected is None else \
+            int(math.ceil(EXPECTED_MARGIN * expected + EXPECTED_SLACK * size)) + 64
         while True:
             sampler = _sampler(hash31(seed, salt, b), size)
             em, s2, s3, scale = shoot.samples(start, size, sampler)
@@ -1037,7 +1166,8 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
             flux = dr.select(dr.isfinite(w), w, 0.0) * scale
             recs = (dr.zeros(mi.UInt32, capacity), dr.zeros(mi.Float, capacity),
                     dr.zeros(mi.Float, capacity), dr.zeros(mi.Float, 3 * capacity),
-                    dr.zeros(mi.UInt32, capacity))
+                    dr.zeros(mi.UInt32, capacity)) \
+                + ((dr.zeros(mi.UInt32, capacity),) if keep_lanes else ())
             counter = dr.zeros(mi.UInt32, 1)
             n_rays, first_hit, n_seen = _photon_trace(
                 scene, tables, ray, flux, sampler, recs, counter,
@@ -1060,9 +1190,13 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
         parts["flux"].append(np.asarray(recs[3], np.float32)[:3 * count].reshape(-1, 3).copy())
         parts["depth"].append(np.minimum(np.asarray(recs[4], np.uint32)[:count],
                                          np.iinfo(np.uint16).max).astype(np.uint16))
+        if keep_lanes:
+            parts["lane"].append(np.asarray(recs[5], np.int64)[:count] + start)
         if bar is not None:
             bar.update(size)
-    records = {k: np.concatenate(v) if v else empty_records()[k] for k, v in parts.items()}
+    records = {k: np.concatenate(v) if v else (empty_records().get(k) if k != "lane"
+                                                else np.zeros(0, np.int64))
+               for k, v in parts.items()}
     return records, rays, hits, (np.concatenate(yields) if yields else np.zeros(0, np.uint32)), \
         retraced
 
@@ -1070,38 +1204,144 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
 def probe_shoot(scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_direct):
     """The probe shoot: :data:`PROBE_PHOTONS` stratified photons over a uniform light quadtree
     (no adaptation). Returns (the light guide it measures, deposits per photon on rexes the eye
-    sees (``seen_rex``), all deposits per photon), or (None, 0, 0) when no light emits."""
+    sees (``seen_rex``), all deposits per photon, the records), or (None, 0, 0, no records)
+    when no light emits."""
     budgets = emitter_budgets(power, PROBE_PHOTONS)
     if budgets is None:
-        return None, 0.0, 0.0
+        return None, 0.0, 0.0, empty_records()
     tree, _ = build_light_tree(scene, tables, seen_rex, replace(settings, light_levels=0), seed,
                                np.where(budgets > 0, np.maximum(budgets // LEAF_PHOTONS, 1), 0),
                                adapt_dim, tables.bounds)
     shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 4))
     records, _, _, yields, _ = shoot_photons(scene, tables, shoot, settings, seed,
-                                          _SALT_PROBE_PHOTON, keep_direct, seen_rex)
+                                             _SALT_PROBE_PHOTON, keep_direct, seen_rex,
+                                             rate=PROBE_RECORDS, keep_lanes=True)
     n = max(shoot.lanes, 1)
     leaves = shoot.leaves
+    lanes = records.pop("lane")
+    records["sharp"] = (lanes & SHARP_BIT) != 0
+    lanes = lanes & (SHARP_BIT - 1)
     guide = LightGuide.from_probe(len(power), tree.em[leaves], tree.lev[leaves], tree.ix[leaves],
-                                  tree.iy[leaves], shoot.leaf_lanes, yields, power)
-    return guide, float(yields.sum()) / n, float(len(records["rex"])) / n
+                                  tree.iy[leaves], shoot.leaf_lanes, yields, power,
+                                  np.bincount(lanes, minlength=shoot.lanes))
+    # each record's leaf: its photon's lane among the leaves' consecutive lanes
+    leaf = np.searchsorted(np.cumsum(shoot.leaf_lanes), lanes, side="right")
+    leaf = leaves[np.minimum(leaf, len(leaves) - 1)]
+    records["weight_scale"] = guide.weight_scale(tree.em[leaf], tree.lev[leaf], tree.ix[leaf],
+                                                 tree.iy[leaf], power) \
+        if settings.light_guide and guide.active else np.ones(len(leaf))
+    records["photons"] = n
+    return guide, float(yields.sum()) / n, float(len(records["rex"])) / n, records
 
 
-def photon_need(need, settings, power, guide, visible_rate, all_rate):
-    """The automatic photon budget: enough photons that every rex bucket the image needs (the
-    size pass's ``visible_buckets``, at the cap it sets from the pixel footprints) splits down
-    to the cap and fills there: :data:`CAP_FILL` × ``split_limit`` photons each, the count past
-    which the soft cap splits a bucket at its cap again (§3.4.1, §4.1). Only ``split_limit``
-    each (buckets at the cap, but as noisy as the split rule allows: 25 % at 16) left the
-    office's ceiling-lit walls mottled (8×8-block relMSE 6e-3 at 128², the bound 3e-3); with
-    4 × 16 they were at the bound, hence :data:`SPLIT_LIMIT` = 32.
+def predicted_noise(hits, known, records, tables, film, n_probe: int):
+    """``(relmse, whole, sharp)``: the block relMSE the rexes' photon noise adds to the image,
+    times the photon count; the share of the image's radiance that pixels read from rexes at
+    level 0 (one bucket per rex: a rex no larger than its pixel, read past the cap); and the
+    share they read from sharp light, deposits of photons that came from the light through
+    delta bounces only (``records["sharp"]``: caustics, a sun patch through glass).
 
-    The probe shoot (:func:`probe_shoot`) measures how many deposits a photon leaves on rexes
-    the eye sees; with the light guide on (``settings.light_guide``), the rate its allocation
-    is expected to reach (:meth:`~mi_twopass.prepass.light_guide.LightGuide.guided_rate`).
-    The budget is CAP_FILL × split_limit × visible_buckets / that rate, within
-    [:data:`MIN_PHOTONS`, :data:`MAX_AUTO_PHOTONS`] and so that the records stay below
-    :data:`MAX_RECORDS` (memory). Returns (photons, stats)."""
+    ``relmse``:
+    ``check``'s 8×8-block relMSE (:func:`mi_twopass.evaluation.metrics.block_relmse`, its ε)
+    of the part two renders of one prepass share, predicted from the size pass's ``hits``
+    and ``known`` (:func:`size_pass`) and the probe shoot's ``records`` (``n_probe``
+    photons).
+
+    A bucket b of world area A_b in the probe's size cell c (area A_c; Σw and Σw² the
+    probe's deposits there) reads E_b with E[E_b] = Σw / A_c and, from N photons shot as the
+    probe's were, Var(E_b) = Σw² · n_probe / (N · A_c · A_b): each photon's weight is
+    n_probe / N of a probe photon's, and N / n_probe as many land. The bucket is the one at the
+    size pass's cap, where every bucket is split down to once photons fill it (a coarser
+    bucket averages over more photons: less noise, which is why the estimate is an upper
+    bound, as is ignoring the bilinear read's mix of four buckets). A pixel reads
+    a·E_b, a = β·ρ/π (β: the throughput of the specular chain the eye ray followed), plus
+    what the eye pass takes from elsewhere (``known``: emitted light, and the direct light
+    where shadow rays compute it; a pixel that meets no rex has only that, its indirect light
+    left out: an upper bound again); pixels sharing a bucket share its error. Per 8×8 block
+    k: Var(k) = Σ_b (Σ_{p∈b} a_p)² Var(E_b) / n_k², over (mean L)² + ε, averaged over all
+    blocks of the film. Channel means throughout."""
+    from ..evaluation.metrics import BLOCK, RELMSE_EPS
+    if not len(hits.get("rex", ())) or not len(records["rex"]):
+        return 0.0, 0.0, 0.0
+    sizes = tables.rex_size_level.astype(np.int64)
+
+    def cells(rex, u, v):
+        res = np.left_shift(1, sizes[rex])
+        ix = np.minimum((u * res).astype(np.int64), res - 1)
+        iy = np.minimum((v * res).astype(np.int64), res - 1)
+        return tables.rex_size_offset[rex] + iy * res + ix, ix, iy
+
+    w = np.asarray(records["flux"], np.float64).mean(axis=1)
+    rc, _, _ = cells(np.asarray(records["rex"], np.int64), np.asarray(records["u"], np.float64),
+                     np.asarray(records["v"], np.float64))
+    s1 = np.bincount(rc, weights=w, minlength=tables.size_cells)
+    s2 = np.bincount(rc, weights=w * w * records.get("weight_scale", 1.0),
+                     minlength=tables.size_cells)
+    sharp = records.get("sharp")
+    s1_sharp = np.bincount(rc, weights=w * sharp, minlength=tables.size_cells) \
+        if sharp is not None else np.zeros(tables.size_cells)
+    rex = hits["rex"]
+    hc, hx, hy = cells(rex, hits["u"], hits["v"])
+    area_c = tables.bucket_area(rex, sizes[rex], hx, hy)
+    area_c = np.where(area_c > 0, area_c, np.inf)
+    level = hits["level"]
+    area_b = hits["jac"] * np.ldexp(1.0, -2 * level)
+    var = np.where(area_b > 0, s2[hc] * n_probe / (area_c * np.maximum(area_b, 1e-300)), 0.0)
+    a = hits["beta"] * hits["albedo"] * units.INV_PI
+    width, height = film
+    bw, bh = -(-width // BLOCK), -(-height // BLOCK)
+    px, py = hits["pixel"] % width, hits["pixel"] // width
+    block = (py // BLOCK) * bw + px // BLOCK
+    scale = np.left_shift(1, level)
+    bx = np.minimum((hits["u"] * scale).astype(np.int64), scale - 1)
+    by = np.minimum((hits["v"] * scale).astype(np.int64), scale - 1)
+    bucket = (rex << 41) | (np.left_shift(1, 2 * level) + by * scale + bx)
+    order = np.lexsort((bucket, block))
+    kb, kk = block[order], bucket[order]
+    starts = np.flatnonzero(np.r_[True, (kb[1:] != kb[:-1]) | (kk[1:] != kk[:-1])])
+    share = np.add.reduceat(a[order], starts)
+    count = np.diff(np.r_[starts, len(order)])
+    var_run = np.add.reduceat(var[order], starts) / count
+    n_blocks = bw * bh
+    num = np.bincount(kb[starts], weights=share * share * var_run, minlength=n_blocks)
+    every = np.arange(width * height)
+    read = s1[hc] / area_c
+    total = np.bincount((every // width // BLOCK) * bw + (every % width) // BLOCK,
+                        weights=known, minlength=n_blocks) \
+        + np.bincount(block, weights=a * read, minlength=n_blocks)
+    cols = np.minimum(BLOCK, width - np.arange(bw) * BLOCK)
+    rows = np.minimum(BLOCK, height - np.arange(bh) * BLOCK)
+    pixels = np.outer(rows, cols).ravel().astype(np.float64)
+    relmse = float(np.sum(num / pixels**2 / ((total / pixels) ** 2 + RELMSE_EPS)) / n_blocks)
+    # the image's radiance read from rexes at level 0 (a whole rex per bucket), and from
+    # sharp light
+    whole = float(np.sum((a * read)[level == 0]) / max(total.sum(), 1e-300))
+    sharp_share = float(np.sum(a * s1_sharp[hc] / area_c) / max(total.sum(), 1e-300))
+    return relmse, whole, sharp_share
+
+
+def photon_need(need, settings, power, guide, visible_rate, all_rate, records=None,
+                tables=None):
+    """The automatic photon budget: the photons the image needs, the larger of two counts.
+
+    - **Noise.** :func:`predicted_noise` predicts, from the size pass's pixels and the probe
+      shoot's deposits, the block relMSE the rexes' photon noise leaves in the image for each
+      photon count; the budget brings it to :data:`NOISE_SHARE` of ``check``'s bound on the
+      block relMSE (:data:`~mi_twopass.evaluation.metrics.BLOCK_RELMSE_MAX`).
+    - **Resolution.** Every rex bucket the image needs (the size pass's ``visible_buckets``,
+      at the cap it sets from the pixel footprints) gets ``split_limit`` photons on average,
+      so that buckets split down to the cap (§3.4.1, §4.1): with fewer, they stay coarse and
+      blur what the noise model does not see, sharp caustics.
+
+    Both divide by the deposits a photon leaves on rexes the eye sees, measured by the probe
+    shoot (:func:`probe_shoot`) and, with the light guide on (``settings.light_guide``), the
+    rate its allocation is expected to reach
+    (:meth:`~mi_twopass.prepass.light_guide.LightGuide.guided_rate`); the noise model also
+    weighs each probe deposit as the guide will. Without the size pass's pixels or the probe's
+    records, the budget is session 12–28's rule: :data:`CAP_FILL` × ``split_limit`` photons
+    per bucket. The budget lies within [:data:`MIN_PHOTONS`, :data:`MAX_AUTO_PHOTONS`] and
+    keeps the records below :data:`MAX_RECORDS` (memory). Returns (photons, stats)."""
+    from ..evaluation.metrics import BLOCK_RELMSE_MAX
     stats = {"visible_pixels": float(need["visible_pixels"]),
              "visible_buckets": float(need["visible_buckets"])}
     if guide is None:
@@ -1114,11 +1354,25 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate):
         rate = guide.guided_rate(power)
         # the guide moves photons towards seen rexes: their other deposits may grow with them
         all_rate = all_rate * max(rate / max(visible_rate, 1e-300), 1.0)
-    want = CAP_FILL * settings.split_limit * stats["visible_buckets"] / rate \
-        if rate > 0 else 0.0
+    split = settings.split_limit * stats["visible_buckets"] / rate if rate > 0 else 0.0
+    if records is not None and tables is not None and "hits" in need:
+        per_photon, whole, sharp = predicted_noise(need["hits"], need["known"], records,
+                                                   tables, need["film"], records["photons"])
+        noise = per_photon / (NOISE_SHARE * BLOCK_RELMSE_MAX)
+        # sharp light wants the buckets at the cap everywhere: up to CAP_FILL × split
+        split *= 1.0 + (CAP_FILL - 1.0) * min(sharp, 1.0)
+        want = max(split, noise)
+        if whole > WHOLE_REX_SHARE:
+            want = max(want, CAP_FILL * split)
+        stats.update(predicted_relmse_per_photon=per_photon, noise_photon_need=noise,
+                     split_photon_need=split, whole_rex_share=whole, sharp_share=sharp)
+    else:
+        want = CAP_FILL * split
     photons = min(max(want, MIN_PHOTONS), MAX_AUTO_PHOTONS)
     if all_rate > 0:
         photons = max(min(photons, MAX_RECORDS / all_rate), MIN_PHOTONS)
+    if "predicted_relmse_per_photon" in stats:
+        stats["predicted_relmse"] = stats["predicted_relmse_per_photon"] / photons
     stats.update(photon_need=want, deposits_per_photon=all_rate,
                  visible_deposits_per_photon=rate, probe_visible_deposits_per_photon=visible_rate)
     return int(photons), stats
@@ -1135,7 +1389,7 @@ def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
     power, adapt_dim = probe_emitters(scene, seed, tables.bounds)
     probe = probe_shoot(scene, tables, seen, settings, seed, power, adapt_dim,
                         settings.direct == "rex")
-    return photon_need(need, settings, power, *probe)[0]
+    return photon_need(need, settings, power, *probe, tables=tables)[0]
 
 
 def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None):
@@ -1152,15 +1406,17 @@ def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     photons = settings.photons
     guide = None
     if photons <= 0 or settings.light_guide:
-        guide, visible_rate, all_rate = probe_shoot(scene, tables, seen_rex, settings, seed,
-                                                    power, adapt_dim, keep_direct)
+        guide, visible_rate, all_rate, probe_records = probe_shoot(
+            scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_direct)
     if photons <= 0:
         photons, need_stats = photon_need(need or {"visible_pixels": 0.0,
                                                    "visible_buckets": 0.0},
-                                          settings, power, guide, visible_rate, all_rate)
+                                          settings, power, guide, visible_rate, all_rate,
+                                          probe_records, tables)
         stats.update(need_stats)
     elif guide is not None:
         stats["deposits_per_photon"] = all_rate
+    probe_guide = guide  # its cells' records per photon size the final batches' buffers
     if not (settings.light_guide and guide is not None and guide.active):
         guide = None
     stats["light_guide"] = guide is not None
@@ -1180,7 +1436,9 @@ def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     # each emitter uses its budget (reps by the leaf's importance with the guide)
     importance = None if guide is None else guide.importance(tree.em, tree.lev, tree.ix,
                                                              tree.iy)
-    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2), importance)
+    shoot = FinalShoot(tree, budgets, adapt_dim, hash31(seed, _SALT_NUMPY, 2), importance,
+                       None if probe_guide is None else
+                       probe_guide.node_deposits(tree.em, tree.lev, tree.ix, tree.iy))
     stats.update(light_tree_leaves=int(np.count_nonzero(tree.leaf)),
                  light_tree_max_level=int(tree.lev.max()) if len(tree.lev) else 0,
                  light_tree_min_level=int(tree.lev.min()) if len(tree.lev) else 0,
