@@ -1129,8 +1129,8 @@ def emitter_budgets(power, photons: int):
 
 def record_capacity(size: int, rate=None) -> int:
     """Record slots for a batch of ``size`` photons that deposit about ``rate`` records each
-    (``None``: not known, :data:`RECORDS_PER_PHOTON`): the rate plus
-    :data:`RECORD_MARGIN`, and at least :data:`RECORDS_PER_PHOTON` per photon. A batch whose
+    (``None``: not known): the rate times :data:`RECORD_MARGIN`, and at least
+    :data:`RECORDS_PER_PHOTON` per photon. A batch whose
     records overflow it is traced again with room for all of them (the records do not depend
     on the capacity), so a low guess costs a second trace of the batch."""
     per_photon = RECORDS_PER_PHOTON if rate is None or not math.isfinite(rate) \
@@ -1142,10 +1142,13 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
                   rate=None, keep_lanes=False):
     """Trace the photons of ``shoot`` (a :class:`FinalShoot`), :data:`PHOTON_BATCH` per Dr.Jit
     launch; returns (records, rays traced, photons whose first ray hit the scene, each photon's
-    deposits on the rexes ``seen_rex`` flags, in lane order, batches traced twice). ``rate``: the records a photon is
-    expected to deposit (the probe shoot's), which sizes the first batch's record buffer
-    (:func:`record_capacity`); each later batch's follows the batches before it.
-    ``keep_lanes``: the records also hold ``lane``, the photon's lane."""
+    deposits on the rexes ``seen_rex`` flags, in lane order, batches traced twice). A batch's
+    record buffer holds what the probe measured in its leaves
+    (:meth:`FinalShoot.expected_records`, × :data:`EXPECTED_MARGIN` + :data:`EXPECTED_SLACK`
+    per photon); where the shoot has no such figures, ``rate`` (records per photon expected)
+    sizes the first batch's (:func:`record_capacity`) and each later batch's follows the one
+    before it. ``keep_lanes``: the records also hold ``lane``, the photon's lane (its top bit
+    :data:`SHARP_BIT`: sharp light)."""
     max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
     parts = {k: [] for k in empty_records()}
     if keep_lanes:
@@ -1295,10 +1298,11 @@ def predicted_noise(hits, known, records, tables, film, n_probe: int):
     scale = np.left_shift(1, level)
     bx = np.minimum((hits["u"] * scale).astype(np.int64), scale - 1)
     by = np.minimum((hits["v"] * scale).astype(np.int64), scale - 1)
-    bucket = (rex << 41) | (np.left_shift(1, 2 * level) + by * scale + bx)
-    order = np.lexsort((bucket, block))
-    kb, kk = block[order], bucket[order]
-    starts = np.flatnonzero(np.r_[True, (kb[1:] != kb[:-1]) | (kk[1:] != kk[:-1])])
+    node = np.left_shift(1, 2 * level) + by * scale + bx  # the bucket within its rex
+    order = np.lexsort((node, rex, block))
+    kb, kr, kn = block[order], rex[order], node[order]
+    starts = np.flatnonzero(np.r_[True, (kb[1:] != kb[:-1]) | (kr[1:] != kr[:-1])
+                                  | (kn[1:] != kn[:-1])])
     share = np.add.reduceat(a[order], starts)
     count = np.diff(np.r_[starts, len(order)])
     var_run = np.add.reduceat(var[order], starts) / count
@@ -1331,7 +1335,9 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate, records=No
     - **Resolution.** Every rex bucket the image needs (the size pass's ``visible_buckets``,
       at the cap it sets from the pixel footprints) gets ``split_limit`` photons on average,
       so that buckets split down to the cap (§3.4.1, §4.1): with fewer, they stay coarse and
-      blur what the noise model does not see, sharp caustics.
+      blur what the noise model does not see, sharp caustics. Up to :data:`CAP_FILL` × that
+      in proportion to the image's share of sharp light (:func:`predicted_noise`), and
+      CAP_FILL × where whole-rex reads carry more than :data:`WHOLE_REX_SHARE` of it.
 
     Both divide by the deposits a photon leaves on rexes the eye sees, measured by the probe
     shoot (:func:`probe_shoot`) and, with the light guide on (``settings.light_guide``), the
@@ -1360,10 +1366,9 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate, records=No
                                                    tables, need["film"], records["photons"])
         noise = per_photon / (NOISE_SHARE * BLOCK_RELMSE_MAX)
         # sharp light wants the buckets at the cap everywhere: up to CAP_FILL × split
-        split *= 1.0 + (CAP_FILL - 1.0) * min(sharp, 1.0)
+        fill = CAP_FILL if whole > WHOLE_REX_SHARE else 1.0 + (CAP_FILL - 1.0) * min(sharp, 1.0)
+        split *= fill
         want = max(split, noise)
-        if whole > WHOLE_REX_SHARE:
-            want = max(want, CAP_FILL * split)
         stats.update(predicted_relmse_per_photon=per_photon, noise_photon_need=noise,
                      split_photon_need=split, whole_rex_share=whole, sharp_share=sharp)
     else:
