@@ -122,6 +122,8 @@ RECORD_MARGIN = 1.15
 #: holds few probe photons, and window_interior's batches read up to 1.5× their prediction
 EXPECTED_MARGIN = 1.5
 EXPECTED_SLACK = 0.25
+#: the photon budget's noise model reads at most about this many 8×8 blocks of the film
+MODEL_BLOCKS = 4096
 #: the bit of a probe record's lane that marks sharp light (:func:`_photon_trace`)
 SHARP_BIT = 1 << 31
 #: the probe shoot's buffers hold this many records per photon (a closed room of albedo 0.8
@@ -556,6 +558,30 @@ def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max
     return n_rays, buckets, hit
 
 
+def _blocks(width: int, height: int):
+    """The noise model's 8×8 blocks of a width × height film (``check``'s): (blocks across,
+    blocks down, the block of each pixel in raster order)."""
+    from ..evaluation.metrics import BLOCK
+    bw, bh = -(-width // BLOCK), -(-height // BLOCK)
+    every = np.arange(width * height)
+    return bw, bh, (every // width // BLOCK) * bw + (every % width) // BLOCK
+
+
+def noise_model_pixels(width: int, height: int) -> np.ndarray:
+    """The pixels the photon budget's noise model reads (:func:`predicted_noise`): all of
+    every 8×8 block of the film, or, past :data:`MODEL_BLOCKS` blocks, of a fixed
+    pseudo-random subset of about that many. The model is a mean over blocks, so a subset
+    estimates it; at 1920×1920 reading them all took 1.5 s of a 5 s prepass."""
+    bw, bh, block = _blocks(width, height)
+    n_blocks = bw * bh
+    if n_blocks <= MODEL_BLOCKS:
+        return np.arange(width * height)
+    stride = -(-n_blocks // MODEL_BLOCKS)
+    chosen = (np.arange(n_blocks, dtype=np.uint64) * np.uint64(2654435761) >> np.uint64(8)) \
+        % np.uint64(stride) == 0
+    return np.flatnonzero(chosen[block])
+
+
 def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor=None):
     """Per size cell, the finest rex level worth resolving: the finest any eye sample there asked
     for (footprints through curved mirrors and lenses are underestimated: finer, never coarser).
@@ -591,22 +617,26 @@ def size_pass(scene, tables: RexTables, settings: RexSettings, seed: int, sensor
     spread_o = (ray.o_x - ray.o, ray.o_y - ray.o)
     spread_d = (ray.d_x - ray.d, ray.d_y - ray.d)
     caps = dr.zeros(mi.UInt32, tables.size_cells + 1)
+    model_pixels = noise_model_pixels(w, h)
+    modelled = np.zeros(w * h, bool)
+    modelled[model_pixels] = True
+    modelled = (idx < n_pixels) & dr.gather(mi.Bool, jit(mi.Bool, modelled), pixel)
     n_rays, buckets, hit = _size_trace(scene, tables, mi.Ray3f(ray), spread_o, spread_d, caps,
                                        mi.Float(settings.bucket_pixels),
                                        float(settings.max_level), sampler,
-                                       mi.Bool(settings.direct == "shadow"), idx < n_pixels)
+                                       mi.Bool(settings.direct == "shadow"), modelled)
     dr.eval(caps, n_rays, buckets, hit)  # one launch of the loop (each read would run it again)
     caps_np = np.asarray(caps, np.int64)[:-1] - 1  # −1: unseen
     rays = int(dr.sum(n_rays)[0])
     need = {"visible_pixels": float(dr.count(buckets > 0)[0]) / spp,
             "visible_buckets": float(dr.sum(buckets)[0]) / spp,
             "film": (w, h)}
-    # the first sample of each pixel: the budget's noise model
-    first = dr.arange(mi.UInt32, w * h)
-    hit = dr.gather(SizeHit, hit, first)
+    # the first sample of each pixel of the noise model's blocks
+    hit = dr.gather(SizeHit, hit, jit(mi.UInt32, model_pixels.astype(np.uint32)))
     found = np.asarray(hit.found, bool)
+    need["model_pixels"] = model_pixels
     need["known"] = np.asarray(hit.known, np.float64)
-    need["hits"] = {"pixel": np.flatnonzero(found)}
+    need["hits"] = {"pixel": model_pixels[found]}
     for name, value in (("rex", hit.rex), ("u", hit.uv.x), ("v", hit.uv.y),
                         ("level", hit.level), ("jac", hit.jac), ("beta", hit.beta),
                         ("albedo", hit.albedo)):
@@ -1237,7 +1267,7 @@ def probe_shoot(scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_
     return guide, float(yields.sum()) / n, float(len(records["rex"])) / n, records
 
 
-def predicted_noise(hits, known, records, tables, film, n_probe: int):
+def predicted_noise(hits, known, records, tables, film, n_probe: int, model_pixels=None):
     """``(relmse, whole, sharp)``: the block relMSE the rexes' photon noise adds to the image,
     times the photon count; the share of the image's radiance that pixels read from rexes at
     level 0 (one bucket per rex: a rex no larger than its pixel, read past the cap); and the
@@ -1261,8 +1291,9 @@ def predicted_noise(hits, known, records, tables, film, n_probe: int):
     what the eye pass takes from elsewhere (``known``: emitted light, and the direct light
     where shadow rays compute it; a pixel that meets no rex has only that, its indirect light
     left out: an upper bound again); pixels sharing a bucket share its error. Per 8×8 block
-    k: Var(k) = Σ_b (Σ_{p∈b} a_p)² Var(E_b) / n_k², over (mean L)² + ε, averaged over all
-    blocks of the film. Channel means throughout."""
+    k: Var(k) = Σ_b (Σ_{p∈b} a_p)² Var(E_b) / n_k², over (mean L)² + ε, averaged over the
+    blocks of ``model_pixels`` (:func:`noise_model_pixels`, the pixels ``known`` holds;
+    ``None``: every pixel of the film). Channel means throughout."""
     from ..evaluation.metrics import BLOCK, RELMSE_EPS
     if not len(hits.get("rex", ())) or not len(records["rex"]):
         return 0.0, 0.0, 0.0
@@ -1292,9 +1323,8 @@ def predicted_noise(hits, known, records, tables, film, n_probe: int):
     var = np.where(area_b > 0, s2[hc] * n_probe / (area_c * np.maximum(area_b, 1e-300)), 0.0)
     a = hits["beta"] * hits["albedo"] * units.INV_PI
     width, height = film
-    bw, bh = -(-width // BLOCK), -(-height // BLOCK)
-    px, py = hits["pixel"] % width, hits["pixel"] // width
-    block = (py // BLOCK) * bw + px // BLOCK
+    bw, bh, block_of = _blocks(width, height)
+    block = block_of[hits["pixel"]]
     scale = np.left_shift(1, level)
     bx = np.minimum((hits["u"] * scale).astype(np.int64), scale - 1)
     by = np.minimum((hits["v"] * scale).astype(np.int64), scale - 1)
@@ -1308,15 +1338,16 @@ def predicted_noise(hits, known, records, tables, film, n_probe: int):
     var_run = np.add.reduceat(var[order], starts) / count
     n_blocks = bw * bh
     num = np.bincount(kb[starts], weights=share * share * var_run, minlength=n_blocks)
-    every = np.arange(width * height)
     read = s1[hc] / area_c
-    total = np.bincount((every // width // BLOCK) * bw + (every % width) // BLOCK,
-                        weights=known, minlength=n_blocks) \
+    model = np.arange(width * height) if model_pixels is None else model_pixels
+    total = np.bincount(block_of[model], weights=known, minlength=n_blocks) \
         + np.bincount(block, weights=a * read, minlength=n_blocks)
+    used = np.bincount(block_of[model], minlength=n_blocks) > 0
     cols = np.minimum(BLOCK, width - np.arange(bw) * BLOCK)
     rows = np.minimum(BLOCK, height - np.arange(bh) * BLOCK)
     pixels = np.outer(rows, cols).ravel().astype(np.float64)
-    relmse = float(np.sum(num / pixels**2 / ((total / pixels) ** 2 + RELMSE_EPS)) / n_blocks)
+    relmse = float(np.sum((num / pixels**2 / ((total / pixels) ** 2 + RELMSE_EPS))[used])
+                   / max(np.count_nonzero(used), 1))
     # the image's radiance read from rexes at level 0 (a whole rex per bucket), and from
     # sharp light
     whole = float(np.sum((a * read)[level == 0]) / max(total.sum(), 1e-300))
@@ -1363,7 +1394,8 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate, records=No
     split = settings.split_limit * stats["visible_buckets"] / rate if rate > 0 else 0.0
     if records is not None and tables is not None and "hits" in need:
         per_photon, whole, sharp = predicted_noise(need["hits"], need["known"], records,
-                                                   tables, need["film"], records["photons"])
+                                                   tables, need["film"], records["photons"],
+                                                   need.get("model_pixels"))
         noise = per_photon / (NOISE_SHARE * BLOCK_RELMSE_MAX)
         # sharp light wants the buckets at the cap everywhere: up to CAP_FILL × split
         fill = CAP_FILL if whole > WHOLE_REX_SHARE else 1.0 + (CAP_FILL - 1.0) * min(sharp, 1.0)

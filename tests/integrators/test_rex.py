@@ -587,3 +587,19 @@ def test_the_budget_noise_model_predicts_the_photon_noise_of_the_image():
             assert 1 / 1.5 < ratio < 1.5, ratio
         else:
             assert ratio < 1.0, ratio
+
+
+def test_the_noise_model_reads_whole_blocks_and_a_subset_of_them_on_large_films():
+    """Up to MODEL_BLOCKS 8×8 blocks, every pixel; past that, every pixel of about that many
+    blocks spread over the film (the model is a mean over blocks)."""
+    from mi_twopass.prepass.rex_textures import MODEL_BLOCKS, noise_model_pixels
+    small = noise_model_pixels(256, 200)
+    np.testing.assert_array_equal(small, np.arange(256 * 200))
+    w, h = 1920, 1080
+    px = noise_model_pixels(w, h)
+    block = (px // w // 8) * (w // 8) + (px % w) // 8
+    blocks, counts = np.unique(block, return_counts=True)
+    assert np.all(counts == 64)  # whole blocks (1920 × 1080 is a multiple of 8)
+    assert 0.5 * MODEL_BLOCKS < len(blocks) <= 1.5 * MODEL_BLOCKS
+    rows = blocks // (w // 8)
+    assert rows.min() < 5 and rows.max() > h // 8 - 5  # spread over the film
