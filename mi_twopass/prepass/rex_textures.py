@@ -714,7 +714,7 @@ def _pilot_trace(scene, tables, ray, sampler):
 
 @dr.syntax
 def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity, keep_direct,
-                  max_depth, rr_depth, seen):
+                  max_depth, rr_depth, seen, keep_lanes):
     """Photons from the lights: deposit Φ at every rex hit, scatter by the hit's BSDF.
 
     Returns per photon its rays, whether its first ray hit the scene and its deposits on
@@ -725,12 +725,13 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
     a bucket then holds the irradiance that Mitsuba's diffuse BSDF integrates (in the shading
     frame), not the flux density across the geometric surface (they differ on meshes with
     interpolated normals)."""
-    rec_rex, rec_u, rec_v, rec_flux, rec_depth = records[:5]
-    # a sixth array: each record's lane (the probe's, for the budget's noise model), its top
-    # bit set where the photon came straight from the light through delta bounces only (sharp
-    # light: caustics, sun patches through glass, and direct light when kept)
-    rec_lane = records[5] if len(records) > 5 else None
-    lane = dr.arange(mi.UInt32, dr.width(ray.o)) if rec_lane is not None else None
+    rec_rex, rec_u, rec_v, rec_flux, rec_depth, rec_lane = records
+    # rec_lane: each record's lane where ``keep_lanes`` (an opaque Bool: the probe's, for the
+    # budget's noise model; the final shoot passes a one-entry array and False, so both run
+    # one kernel), its top bit set where the photon came straight from the light through
+    # delta bounces only (sharp light: caustics, sun patches through glass, and direct light
+    # when kept)
+    lane = dr.arange(mi.UInt32, dr.width(ray.o))
     sharp = mi.Bool(True)
     ctx = mi.BSDFContext(mi.TransportMode.Importance)
     ctx_radiance = mi.BSDFContext()
@@ -763,8 +764,8 @@ def _photon_trace(scene, tables, ray, flux, sampler, records, counter, capacity,
         for c in range(3):
             dr.scatter(rec_flux, Phi[c], slot * 3 + c, write)
         dr.scatter(rec_depth, depth, slot, write)
-        if rec_lane is not None:
-            dr.scatter(rec_lane, lane | dr.select(sharp, mi.UInt32(SHARP_BIT), 0), slot, write)
+        dr.scatter(rec_lane, lane | dr.select(sharp, mi.UInt32(SHARP_BIT), 0), slot,
+                   write & keep_lanes)
 
         bsdf = si.bsdf(ray)
         bs, w = bsdf.sample(ctx, si, sampler.next_1d(valid), sampler.next_2d(valid), valid)
@@ -1199,13 +1200,14 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
             flux = dr.select(dr.isfinite(w), w, 0.0) * scale
             recs = (dr.zeros(mi.UInt32, capacity), dr.zeros(mi.Float, capacity),
                     dr.zeros(mi.Float, capacity), dr.zeros(mi.Float, 3 * capacity),
-                    dr.zeros(mi.UInt32, capacity)) \
-                + ((dr.zeros(mi.UInt32, capacity),) if keep_lanes else ())
+                    dr.zeros(mi.UInt32, capacity),
+                    dr.zeros(mi.UInt32, capacity if keep_lanes else 1))
             counter = dr.zeros(mi.UInt32, 1)
             n_rays, first_hit, n_seen = _photon_trace(
                 scene, tables, ray, flux, sampler, recs, counter,
                 dr.opaque(mi.UInt32, capacity),  # a literal compiled a kernel per batch size
-                mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth), seen)
+                mi.Bool(keep_direct), mi.UInt32(max_depth), mi.UInt32(settings.rr_depth), seen,
+                dr.opaque(mi.Bool, keep_lanes))
             dr.eval(n_rays, first_hit, n_seen, *recs)
             count = int(counter[0])
             if count <= capacity:
