@@ -80,6 +80,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import units
+from ..evaluation.metrics import BLOCK, BLOCK_RELMSE_MAX, RELMSE_EPS
 from ..host_arrays import jit
 from ..progress import progress
 from ..rays import shadow_ray, spawn_ray
@@ -561,7 +562,6 @@ def _size_trace(scene, tables, ray, spread_o, spread_d, caps, bucket_pixels, max
 def _blocks(width: int, height: int):
     """The noise model's 8×8 blocks of a width × height film (``check``'s): (blocks across,
     blocks down, the block of each pixel in raster order)."""
-    from ..evaluation.metrics import BLOCK
     bw, bh = -(-width // BLOCK), -(-height // BLOCK)
     every = np.arange(width * height)
     return bw, bh, (every // width // BLOCK) * bw + (every % width) // BLOCK
@@ -1296,7 +1296,6 @@ def predicted_noise(hits, known, records, tables, film, n_probe: int, model_pixe
     k: Var(k) = Σ_b (Σ_{p∈b} a_p)² Var(E_b) / n_k², over (mean L)² + ε, averaged over the
     blocks of ``model_pixels`` (:func:`noise_model_pixels`, the pixels ``known`` holds;
     ``None``: every pixel of the film). Channel means throughout."""
-    from ..evaluation.metrics import BLOCK, RELMSE_EPS
     if not len(hits.get("rex", ())) or not len(records["rex"]):
         return 0.0, 0.0, 0.0
     sizes = tables.rex_size_level.astype(np.int64)
@@ -1345,9 +1344,7 @@ def predicted_noise(hits, known, records, tables, film, n_probe: int, model_pixe
     total = np.bincount(block_of[model], weights=known, minlength=n_blocks) \
         + np.bincount(block, weights=a * read, minlength=n_blocks)
     used = np.bincount(block_of[model], minlength=n_blocks) > 0
-    cols = np.minimum(BLOCK, width - np.arange(bw) * BLOCK)
-    rows = np.minimum(BLOCK, height - np.arange(bh) * BLOCK)
-    pixels = np.outer(rows, cols).ravel().astype(np.float64)
+    pixels = np.bincount(block_of, minlength=n_blocks).astype(np.float64)  # edge blocks: fewer
     relmse = float(np.sum((num / pixels**2 / ((total / pixels) ** 2 + RELMSE_EPS))[used])
                    / max(np.count_nonzero(used), 1))
     # the image's radiance read from rexes at level 0 (a whole rex per bucket), and from
@@ -1380,7 +1377,6 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate, records=No
     records, the budget is session 12–28's rule: :data:`CAP_FILL` × ``split_limit`` photons
     per bucket. The budget lies within [:data:`MIN_PHOTONS`, :data:`MAX_AUTO_PHOTONS`] and
     keeps the records below :data:`MAX_RECORDS` (memory). Returns (photons, stats)."""
-    from ..evaluation.metrics import BLOCK_RELMSE_MAX
     stats = {"visible_pixels": float(need["visible_pixels"]),
              "visible_buckets": float(need["visible_buckets"])}
     if guide is None:
