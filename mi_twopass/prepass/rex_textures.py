@@ -87,6 +87,7 @@ from ..rays import shadow_ray, spawn_ray
 from ..scene.bounds import infinite_light_leaks, scene_bounds
 from ..scene.emission import emitter_rays, has_infinite_emitters
 from ..scene.lambertian import is_lambertian
+from ..scene.order import registry_id, stable_shapes
 from ..seeds import hash31
 from .light_guide import LightGuide
 
@@ -248,12 +249,12 @@ class RexTables:
     """
 
     def __init__(self, scene):
-        shapes = list(scene.shapes())
+        # rexes numbered alike in every load of the scene (Mitsuba's own order varies)
+        shapes = [shape for _, shape in stable_shapes(scene)]
         self.bounds = scene_bounds(scene)
         #: the length ray offsets are relative to (:func:`mi_twopass.rays.spawn_ray`)
         self.scale = float(self.bounds.radius)
-        ids = (np.asarray(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
-               if shapes else np.zeros(0, np.int64))
+        ids = np.array([registry_id(shape) for shape in shapes], dtype=np.int64)
         # ids past the scene's shapes (those inside instanced shape groups) map to the sentinel
         # entry n_ids: NO_SHAPE, so they are path traced and never alias a real shape
         self.n_ids = int(ids.max()) + 1 if ids.size else 1
@@ -359,7 +360,7 @@ class RexTables:
         return int(self.n_ids * 4 + len(self.shapes) * 20 + self.tri_count * 40 + self.count * 28)
 
     def shape_rexes(self, shape) -> np.ndarray:
-        """The rex ids of a shape (a ``mi.Shape``, its index in ``scene.shapes()`` or its id)."""
+        """The rex ids of a shape (a ``mi.Shape``, its index in ``shapes`` or its id)."""
         if isinstance(shape, str):
             matches = [i for i, s in enumerate(self.shapes) if s.id() == shape]
             if not matches:

@@ -54,6 +54,7 @@ from ..host_arrays import columns, id_table, jit, vectors
 from ..seeds import numpy_rng
 from ..tables import Tables
 from .lambertian import is_lambertian
+from .order import registry_id, stable_shapes
 
 #: shape kinds of the lookup table
 KIND_NONE, KIND_MESH, KIND_SPHERE, KIND_DISK, KIND_CYLINDER = 0, 1, 2, 3, 4
@@ -114,20 +115,16 @@ def _bsdf_sides(shape):
     return diffuse, two_sided
 
 
-def _registry_id(shape) -> int:
-    return int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
-
-
 def _extract_shapes(scene):
     geoms, skipped = [], []
-    for index, shape in enumerate(scene.shapes()):
+    for index, shape in stable_shapes(scene):  # patches numbered alike in every load
         diffuse, two_sided = _bsdf_sides(shape)
         bsdf = shape.bsdf()
         scatters = (int(mi.BSDFFlags.Diffuse) | int(mi.BSDFFlags.Glossy)
                     | int(mi.BSDFFlags.DeltaReflection) | int(mi.BSDFFlags.DeltaTransmission))
         if bsdf is not None and not int(bsdf.flags()) & scatters and not shape.is_emitter():
             continue  # invisible (null BSDF): nothing to model
-        common = dict(index=index, shape=shape, reg_id=_registry_id(shape),
+        common = dict(index=index, shape=shape, reg_id=registry_id(shape),
                       area=0.0,
                       flip=bool(shape.has_flipped_normals()), two_sided=two_sided,
                       diffuse=diffuse)
