@@ -160,6 +160,19 @@ CAP_FILL = 4
 #: 0.17×: its error is the blur of a sharp caustic in buckets the photons leave coarse,
 #: which the split floor of :func:`photon_need` answers
 NOISE_SHARE = 1.0 / 3.0
+#: the image's share of sharp light (:func:`predicted_noise`) at which the resolution rule of
+#: :func:`photon_need` asks its full CAP_FILL × split_limit photons per visible bucket; below
+#: it, in proportion, down to none where no light in the rexes is sharp. Smooth light's error
+#: is the photon noise, which the noise model predicts; sharp light's is also the blur of
+#: buckets left coarse, which it does not. Measured with ``check --res 128 --spp 64
+#: --renders 2`` and the photons forced to 1, 1/2, 1/4 and 1/8 of session 29's budget (its
+#: fill 1 + 3 × sharp share): on window_interior (sharp share 0.000) the bias part went 5.1e-4,
+#: 1.1e-3, 2.0e-3, 3.2e-3, as 1/N, and the model predicted 4.0e-4 at the first; on many_lights
+#: (0.000) 8e-5, 1.8e-4, 8.8e-4, 1.9e-3 (predicted 3.1e-4 at the first); on caustic.xml
+#: (0.086) 7.0e-4, 1.6e-3, 5.0e-3, 7.1e-3 (predicted 2.7e-4 at the first): blur, faster than
+#: 1/N. A quarter keeps the caustic at 1.37 × split (it was 1.26) and lets the split rule go
+#: where the light is smooth
+SHARP_FULL = 0.25
 #: where pixels read more than this share of the image's radiance from rexes at level 0 (a
 #: rex no larger than its pixel: one bucket, refined only past the size-pass cap, by the soft
 #: cap's 4^k rule), the automatic budget keeps CAP_FILL × split_limit photons per bucket as
@@ -1363,12 +1376,14 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate, records=No
       shoot's deposits, the block relMSE the rexes' photon noise leaves in the image for each
       photon count; the budget brings it to :data:`NOISE_SHARE` of ``check``'s bound on the
       block relMSE (:data:`~mi_twopass.evaluation.metrics.BLOCK_RELMSE_MAX`).
-    - **Resolution.** Every rex bucket the image needs (the size pass's ``visible_buckets``,
-      at the cap it sets from the pixel footprints) gets ``split_limit`` photons on average,
-      so that buckets split down to the cap (§3.4.1, §4.1): with fewer, they stay coarse and
-      blur what the noise model does not see, sharp caustics. Up to :data:`CAP_FILL` × that
-      in proportion to the image's share of sharp light (:func:`predicted_noise`), and
-      CAP_FILL × where whole-rex reads carry more than :data:`WHOLE_REX_SHARE` of it.
+    - **Resolution.** Where the rexes hold sharp light (caustics, and direct light kept in
+      them), every rex bucket the image needs (the size pass's ``visible_buckets``, at the cap
+      it sets from the pixel footprints) gets :data:`CAP_FILL` × ``split_limit`` photons on
+      average, so that buckets split down to the cap (§3.4.1, §4.1): with fewer, they stay
+      coarse and blur what the noise model does not see. In proportion to the image's share
+      of sharp light (:func:`predicted_noise`) up to :data:`SHARP_FULL`; none where the light
+      is smooth, whose error is the noise; CAP_FILL × where whole-rex reads carry more than
+      :data:`WHOLE_REX_SHARE` of it.
 
     Both divide by the deposits a photon leaves on rexes the eye sees, measured by the probe
     shoot (:func:`probe_shoot`) and, with the light guide on (``settings.light_guide``), the
@@ -1396,8 +1411,9 @@ def photon_need(need, settings, power, guide, visible_rate, all_rate, records=No
                                                    tables, need["film"], records["photons"],
                                                    need.get("model_pixels"))
         noise = per_photon / (NOISE_SHARE * BLOCK_RELMSE_MAX)
-        # sharp light wants the buckets at the cap everywhere: up to CAP_FILL × split
-        fill = CAP_FILL if whole > WHOLE_REX_SHARE else 1.0 + (CAP_FILL - 1.0) * min(sharp, 1.0)
+        # sharp light wants the buckets at the cap: up to CAP_FILL × split, in proportion to
+        # its share; smooth light only what its noise needs
+        fill = CAP_FILL if whole > WHOLE_REX_SHARE else CAP_FILL * min(sharp / SHARP_FULL, 1.0)
         split *= fill
         want = max(split, noise)
         stats.update(predicted_relmse_per_photon=per_photon, noise_photon_need=noise,

@@ -484,10 +484,12 @@ def test_rex_build_follows_the_split_rule_record_by_record():
 
 
 def test_automatic_photon_budget_follows_the_image():
-    """Without ``photons`` the budget is what the image needs: split_limit·4 photons for every
-    rex bucket the size pass sees at the pixel footprint, over the visible deposits per photon
-    the probe measures. Four times the pixels, about four times the buckets and the photons; a
-    film that sees no rex, the floor of 2^16."""
+    """Without ``photons`` the budget is what the image needs: where the rexes' light is sharp,
+    split_limit·4 photons for every rex bucket the size pass sees at the pixel footprint, over
+    the visible deposits per photon the probe measures. Four times the pixels, about four
+    times the buckets and the photons; a film that sees no rex, the floor of 2^16. Where the
+    light is smooth (direct="shadow": the rexes hold the indirect light alone), no resolution
+    need: the noise model's count."""
     from mi_twopass.prepass.rex_textures import MIN_PHOTONS, photon_budget
 
     def scene(res, look_at_floor=True):
@@ -511,18 +513,28 @@ def test_automatic_photon_budget_follows_the_image():
     # the cap's buckets are bucket_pixels wide or up to half that: 1/bp² to 4/bp² per pixel
     per_pixel = st["visible_buckets"] / st["visible_pixels"]
     assert 1.0 / settings.bucket_pixels**2 <= per_pixel <= 4.0 / settings.bucket_pixels**2
-    # the larger of the two needs: split_limit photons per bucket, up to 4× where the light
+    # the larger of the two needs: CAP_FILL × split_limit photons per bucket where the light
     # is sharp (here all of it: direct="rex" keeps the point light's direct light in the
     # rexes), and the noise model's
     assert st["sharp_share"] == pytest.approx(1.0, abs=0.02)
     assert st["split_photon_need"] == pytest.approx(
         settings.split_limit * st["visible_buckets"] / st["visible_deposits_per_photon"]
-        * (1 + (rex_textures.CAP_FILL - 1) * min(st["sharp_share"], 1.0)))
+        * rex_textures.CAP_FILL * min(st["sharp_share"] / rex_textures.SHARP_FULL, 1.0))
     assert st["noise_photon_need"] == pytest.approx(
         st["predicted_relmse_per_photon"] / (rex_textures.NOISE_SHARE * 3e-3))
     assert st["photon_need"] == max(st["split_photon_need"], st["noise_photon_need"])
     assert st["whole_rex_share"] < rex_textures.WHOLE_REX_SHARE
     assert photon_budget(scene(32, look_at_floor=False), settings) == MIN_PHOTONS
+    lit = mi.load_dict({"type": "scene", "sensor": top_camera(128), "floor": floor(2.0),
+                        "wall": {"type": "rectangle",
+                                 "to_world": T().translate([0, 1.2, 1]).rotate([1, 0, 0], 90)
+                                 .scale(1.2),
+                                 "bsdf": {"type": "diffuse", "reflectance": rgb(0.5)}},
+                        "light": {"type": "point", "position": [0.5, -0.5, 2],
+                                  "intensity": rgb(3.0)}})
+    smooth = build_rexes(lit, RexSettings(direct="shadow"), seed=0).stats
+    assert smooth["sharp_share"] == 0.0 and smooth["split_photon_need"] == 0.0
+    assert smooth["photon_need"] == smooth["noise_photon_need"] > 0
 
 
 def test_record_buffers_follow_the_probe_and_a_retrace_changes_nothing(monkeypatch):
