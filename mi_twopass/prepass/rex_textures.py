@@ -1156,28 +1156,44 @@ def permute(i, n, key):
     return (i + key) % n
 
 
+#: the photon records' Dr.Jit arrays: name, type and values per record
+_RECORD_ARRAYS = (("rex", mi.UInt32, 1), ("u", mi.Float, 1), ("v", mi.Float, 1),
+                  ("flux", mi.Float, 3), ("depth", mi.UInt32, 1))
+
+
+def compact_records(buffers, count: int) -> tuple:
+    """The first ``count`` records of a light-pass batch's buffers (as :func:`_photon_trace`
+    filled them: rex, u, v, flux channel-interleaved, depth), copied into arrays of their
+    size (evaluated: the buffers can go)."""
+    out = tuple(dr.gather(cls, buf, dr.arange(mi.UInt32, k * count)) if count else cls()
+                for (_, cls, k), buf in zip(_RECORD_ARRAYS, buffers))
+    dr.eval(*out)
+    return out
+
+
 def device_records(batches) -> dict:
-    """The records of the light pass's batches (``(buffers, count)`` of each, as
-    :func:`_photon_trace` filled them) as one set of Dr.Jit arrays: ``rex`` (UInt32), ``u``,
-    ``v`` (Float), ``flux`` (Float, 3 per record, channel-interleaved) and ``depth`` (UInt32),
-    the first ``count`` of each batch's buffers, one batch after the other. Kept in Dr.Jit for
-    the rex build (:func:`sort_records`, :func:`deposit`): the office at 256² (6.1 M records)
-    copied them into numpy and back. Offsets are opaque (a literal would compile the copy anew
-    for every batch size)."""
+    """The records of the light pass's batches (``(arrays, count)`` of each, their arrays from
+    :func:`compact_records`) as one set of Dr.Jit arrays: ``rex`` (UInt32), ``u``, ``v``
+    (Float), ``flux`` (Float, 3 per record, channel-interleaved) and ``depth`` (UInt32), one
+    batch after the other. Kept in Dr.Jit for the rex build (:func:`sort_records`,
+    :func:`deposit`): the office at 256² (6.1 M records) copied them into numpy and back.
+    ``batches`` is emptied as it is copied (each batch freed once it is). Offsets are opaque
+    (a literal would compile the copy anew for every batch size)."""
+    if len(batches) == 1:
+        arrays, _ = batches.pop()
+        return {name: a for (name, _, _), a in zip(_RECORD_ARRAYS, arrays)}
     total = sum(count for _, count in batches)
-    kinds = (mi.UInt32, mi.Float, mi.Float, mi.Float, mi.UInt32)
-    names = ("rex", "u", "v", "flux", "depth")
-    widths = (1, 1, 1, 3, 1)
-    out = {name: dr.zeros(cls, k * total) for name, cls, k in zip(names, kinds, widths)}
+    out = {name: dr.zeros(cls, k * total) for name, cls, k in _RECORD_ARRAYS}
     offset = 0
-    for recs, count in batches:
+    while batches:
+        arrays, count = batches.pop(0)
         if count:
-            for name, cls, k, buf in zip(names, kinds, widths, recs):
-                idx = dr.arange(mi.UInt32, k * count)
-                dr.scatter(out[name], dr.gather(cls, buf, idx),
-                           idx + dr.opaque(mi.UInt32, k * offset))
+            for (name, _, k), a in zip(_RECORD_ARRAYS, arrays):
+                dr.scatter(out[name], a, dr.arange(mi.UInt32, k * count)
+                           + dr.opaque(mi.UInt32, k * offset))
             dr.eval(*out.values())
         offset += count
+        del arrays
     return out
 
 
@@ -1267,7 +1283,9 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
         hits += int(dr.count(first_hit)[0])
         yields.append(np.asarray(n_seen, np.uint32))
         if not host:
-            parts["rex"].append((recs, count))
+            # cut to the records now: the batch's buffer (its capacity) is freed at once
+            parts["rex"].append((compact_records(recs, count), count))
+            del recs
             if bar is not None:
                 bar.update(size)
             continue

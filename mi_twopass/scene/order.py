@@ -11,8 +11,10 @@ gave the same bytes. Every prepass walks the shapes through :func:`stable_shapes
 
 What stays: a prepass's parallel scatter-adds sum in the order the threads reach them, so two
 runs agree to float rounding (the image means to 6 digits on veach-bidir and the material zoo,
-not the bytes); and where Mitsuba reorders the *emitters* too (scenes_xml/many_lights.xml, its
-sphere lights), ``path``'s own image changes from one load to the next, and so do ours.
+not the bytes); and where Mitsuba reorders the *emitters* too (three loads each: three orders
+on scenes_xml/many_lights.xml, office.xml and ../shared/scenes/staircase2, one on the other
+eight scenes), ``path``'s own image changes from one load to the next, and so do ours (emitter
+sampling, and the photons and particles each emitter is given).
 
 The key is what a shape *is*, not where it sits in memory: its id, its class, its primitive
 and vertex counts, its bounding box and the ids of its BSDF and emitter (host values all: no

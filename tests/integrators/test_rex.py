@@ -481,7 +481,8 @@ def test_rex_build_follows_the_split_rule_record_by_record():
     perm = rng.permutation(n)
     again = build_rex_tree(tables, {k: a[perm] for k, a in records.items()}, cap, settings)
     batches = []
-    for part in np.array_split(perm, 3):  # three light-pass batches, records at their start
+    for part in np.array_split(perm, 3):  # three light-pass batches, records at their start,
+        # and padding past them (the buffer's unused capacity)
         pad = 5
         bufs = (mi.UInt32(np.append(records["rex"][part], np.zeros(pad, np.uint32))),
                 mi.Float(np.append(u[part], np.zeros(pad, np.float32))),
@@ -490,7 +491,7 @@ def test_rex_build_follows_the_split_rule_record_by_record():
                 mi.UInt32(np.append(records["depth"][part].astype(np.uint32),
                                     np.zeros(pad, np.uint32))),
                 mi.UInt32(1))
-        batches.append((bufs, len(part)))
+        batches.append((rex_textures.compact_records(bufs, len(part)), len(part)))
     device = rex_textures.device_records(batches)
     assert rex_textures.record_count(device) == n
     on_device = build_rex_tree(tables, device, cap, settings)
