@@ -1,12 +1,14 @@
-"""Does a scene load (and render with ``path``) the same way in two processes?
+"""Does a scene load (and render) the same way in two processes?
 
     .venv/bin/python tools/load_order.py scenes_xml/office.xml [--res 64] [--spp 4] [--serial]
+        [--integrators path,radiosity_gather,spike_gather,radiance_cache,rex,twopass]
 
 Loads the scene in two fresh Python processes and prints, per process, a fingerprint of the
-order of ``scene.shapes()`` (each shape's primitive count and surface area, in order) and of a
-``path`` render (same seed), then whether the two agree. Mitsuba's XML loader builds shapes in
-parallel; ``--serial`` loads with ``parallel=False``. docs/design.md ("Timing and randomness")
-cites what it found.
+order of ``scene.shapes()`` (each shape's primitive count and bounding box, in order), of
+``scene.emitters()`` (each one's shape's bounding box, or its class and bounds) and of each
+integrator's image (same render seed, a fresh integrator), with the image's mean; then whether
+the two processes agree. Mitsuba's XML loader builds shapes in parallel; ``--serial`` loads
+with ``parallel=False``. docs/design.md ("Timing and randomness") cites what it found.
 """
 import argparse
 import json
@@ -18,13 +20,22 @@ import hashlib, json, sys
 import numpy as np
 import mi_twopass  # noqa: F401
 import mitsuba as mi
-path, res, spp, parallel = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
-scene = mi.load_file(path, parallel=parallel, res=res) if "$res" in open(path).read() \
-    else mi.load_file(path, parallel=parallel)
-order = [(s.primitive_count(), round(float(s.surface_area()[0]), 5)) for s in scene.shapes()]
-img = np.ascontiguousarray(np.asarray(mi.render(scene, spp=spp, seed=3)))
-print(json.dumps({"order": hashlib.md5(repr(order).encode()).hexdigest()[:12],
-                  "path": hashlib.md5(img.tobytes()).hexdigest()[:12]}))
+from mi_twopass.scenefile import load_scene
+path, res, spp, parallel, names = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), \
+    sys.argv[4] == "1", sys.argv[5].split(",")
+scene = load_scene(path, film_res=res) if parallel else mi.load_file(path, parallel=False)
+def digest(x):
+    return hashlib.md5(repr(x).encode()).hexdigest()[:12]
+def emitter_key(e):
+    shape = e.get_shape() if hasattr(e, "get_shape") else None
+    return str(shape.bbox()) if shape is not None else e.class_name() + str(e.bbox())
+out = {"shapes": digest([(s.primitive_count(), str(s.bbox())) for s in scene.shapes()]),
+       "emitters": digest([emitter_key(e) for e in scene.emitters()])}
+for name in names:
+    img = np.ascontiguousarray(np.asarray(
+        mi.render(scene, integrator=mi.load_dict({"type": name}), spp=spp, seed=3)))
+    out[name] = [hashlib.md5(img.tobytes()).hexdigest()[:12], float(img.mean())]
+print(json.dumps(out))
 """
 
 
@@ -33,17 +44,28 @@ def main():
     ap.add_argument("scene")
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--spp", type=int, default=4)
-    ap.add_argument("--serial", action="store_true", help="load with parallel=False")
+    ap.add_argument("--serial", action="store_true", help="load with parallel=False (the "
+                    "scene file's own film size)")
+    ap.add_argument("--integrators", default="path",
+                    help="comma-separated plugin names rendered in each process")
     a = ap.parse_args()
     runs = []
     for k in range(2):
         out = subprocess.run([sys.executable, "-c", CHILD, a.scene, str(a.res), str(a.spp),
-                              "0" if a.serial else "1"], capture_output=True, text=True,
-                             check=True)
+                              "0" if a.serial else "1", a.integrators], capture_output=True,
+                             text=True, check=True)
         runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
-        print(f"process {k + 1}: shapes order {runs[-1]['order']}, path image {runs[-1]['path']}")
-    for key, what in (("order", "shapes order"), ("path", "path image")):
-        print(f"{what}: {'same' if runs[0][key] == runs[1][key] else 'DIFFERENT'}")
+        images = ", ".join(f"{n} {v[0]} (mean {v[1]:.6f})" for n, v in runs[-1].items()
+                           if isinstance(v, list))
+        print(f"process {k + 1}: shapes order {runs[-1]['shapes']}, emitters order "
+              f"{runs[-1]['emitters']}; {images}")
+    for key in runs[0]:
+        same = runs[0][key] == runs[1][key]
+        if not same and isinstance(runs[0][key], list) and runs[0][key][1] == runs[1][key][1]:
+            verdict = "different bytes, the same mean"
+        else:
+            verdict = "same" if same else "DIFFERENT"
+        print(f"{key}: {verdict}")
 
 
 if __name__ == "__main__":

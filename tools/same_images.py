@@ -9,8 +9,9 @@
 16 spp, seed 3, a fresh integrator each) and stores the images and ray counters. ``compare``
 prints, per (scene, integrator), "identical" or the largest pixel difference and both image
 means, and the ray counters side by side. Two processes of the same commit can differ on scenes
-whose shapes Mitsuba loads in a different order (``tools/load_order.py``): run ``render``
-twice on one commit to see which outcomes a scene has before reading a difference as a change.
+whose emitters Mitsuba loads in a different order (``tools/load_order.py``; the shapes' order
+no longer matters since session 30): run ``render`` twice on one commit to see which outcomes
+a scene has before reading a difference as a change.
 """
 import argparse
 

@@ -9,12 +9,12 @@ each time, so one seed gave a statistically different image in every run (mixed_
 gave the same bytes. Every prepass walks the shapes through :func:`stable_shapes` instead;
 ``tests/scene/test_order.py`` loads one room with its shapes listed in two orders.
 
-What stays: a prepass's parallel scatter-adds sum in the order the threads reach them, so two
-runs agree to float rounding (the image means to 6 digits on veach-bidir and the material zoo,
-not the bytes); and where Mitsuba reorders the *emitters* too (three loads each: three orders
-on scenes_xml/many_lights.xml, office.xml and ../shared/scenes/staircase2, one on the other
-eight scenes), ``path``'s own image changes from one load to the next, and so do ours (emitter
-sampling, and the photons and particles each emitter is given).
+What stays: where Mitsuba reorders the *emitters* too, ``path``'s own image changes from one
+load to the next, and so do ours (emitter sampling, and the photons and particles each emitter
+is given). In six loads each: six orders on scenes_xml/many_lights.xml, office.xml and
+../shared/scenes/staircase2, two on veach-bidir, one on the other seven scenes (four of them
+have one emitter). ``tools/load_order.py SCENE --integrators path,rex,...`` renders in two
+processes and compares: on mixed_room every integrator now gives the same bytes twice.
 
 The key is what a shape *is*, not where it sits in memory: its id, its class, its primitive
 and vertex counts, its bounding box and the ids of its BSDF and emitter (host values all: no
