@@ -170,9 +170,9 @@ NOISE_SHARE = 1.0 / 3.0
 #: 1.1e-3, 2.0e-3, 3.2e-3, as 1/N, and the model predicted 4.0e-4 at the first; on many_lights
 #: (0.000) 8e-5, 1.8e-4, 8.8e-4, 1.9e-3 (predicted 3.1e-4 at the first); on caustic.xml
 #: (0.086) 7.0e-4, 1.6e-3, 5.0e-3, 7.1e-3 (predicted 2.7e-4 at the first): blur, faster than
-#: 1/N. A quarter keeps the caustic at 1.37 × split (it was 1.26) and lets the split rule go
-#: where the light is smooth
-SHARP_FULL = 0.25
+#: 1/N, in bounds (3e-3) down to a fill of about 0.5 and out at 0.31. A third gives the caustic
+#: a fill of 1.03, twice that margin, and lets the split rule go where the light is smooth
+SHARP_FULL = 1.0 / 3.0
 #: where pixels read more than this share of the image's radiance from rexes at level 0 (a
 #: rex no larger than its pixel: one bucket, refined only past the size-pass cap, by the soft
 #: cap's 4^k rule), the automatic budget keeps CAP_FILL × split_limit photons per bucket as
