@@ -123,16 +123,21 @@ class RexIntegrator(TwoPassIntegrator):
       to a third of ``check``'s bound (3e-3). Against the noise ``check --renders 2`` measured
       it read 0.5–2.4× (window_interior to tut-cbox), and 0.7–0.9× against the photon noise
       of renders in the test that pins it;
-    - *resolution*: ``split_limit`` photons per bucket the image needs (the size pass counts,
-      for every pixel that sees a rex through specular and glossy bounces, (pixel side /
-      bucket side at its cap)², ¼–1 bucket per visible pixel with ``bucket_pixels`` = 2), so
-      that buckets split down to the pixel footprint: with fewer, a sharp caustic blurs in
-      coarse buckets, which the noise model does not see (``caustic.xml`` read 0.17× its
-      prediction). Up to 4× that where the image's light is *sharp*, in proportion to its
-      share: the probe's deposits of photons that came from the light through delta bounces
-      only (a caustic, a sun patch through a glass pane, direct light kept in the rexes).
-      A sun patch through a pane at 32² (``tests/compose/test_unsampled.py``) read 1.15× its
-      light with a quarter of the photons, 1.06× with all of them.
+    - *resolution*, for *sharp* light only: the probe's deposits of photons that came from
+      the light through delta bounces only (a caustic, a sun patch through a glass pane,
+      direct light kept in the rexes). Where the image's rex light is sharp, 4 × split_limit
+      photons per bucket the image needs (the size pass counts, for every pixel that sees a
+      rex through specular and glossy bounces, (pixel side / bucket side at its cap)², ¼–1
+      bucket per visible pixel with ``bucket_pixels`` = 2), so that buckets split down to the
+      pixel footprint: with fewer, a sharp caustic blurs in coarse buckets, which the noise
+      model does not see (``caustic.xml`` read 0.17× its prediction); in proportion to the
+      sharp share below a third of the image's rex light; none where the light is smooth.
+      Smooth light's error is the noise: with the photons forced to 1, ½, ¼ and ⅛ of session
+      29's budget, ``check``'s bias part on window_interior and many_lights (no sharp light)
+      grew as 1/photons, near the model's prediction, and on ``caustic.xml`` (8.6 % sharp)
+      faster, its blur (``rex_textures.SHARP_FULL``). A sun patch through a pane at 32²
+      (``tests/compose/test_unsampled.py``) read 1.15× its light with a quarter of the
+      photons, 1.06× with all of them.
 
     Where pixels read more than 1 % of the image's radiance from whole rexes (rexes no larger
     than their pixel: veach-bidir's lamp at 128², 3.2 %), the floor is the rule of sessions
@@ -140,10 +145,10 @@ class RexIntegrator(TwoPassIntegrator):
     rexes past their cap, and veach-bidir's image mean read +0.98 % of the reference with the
     noise budget alone against +0.64 % with that floor. The budget lies within [2^16, 2^24]
     photons and keeps the records below 8M (memory). Photons at 128² / 256²
-    (``stats["photons"]``): the Cornell box 0.12M / 0.49M, the office 0.34M /
-    1.44M, veach-bidir 0.60M / 1.08M, ``caustic.xml`` (0.16 deposits a photon; 8 % of its
-    image's rex light sharp) 2.5M / 10M. A scene seen mostly through non-Lambertian
-    surfaces needs few. Session 28's rule (4 × split_limit per bucket everywhere) gave the
+    (``stats["photons"]``, session 30): the Cornell box 0.065M (the floor) / 0.13M, the
+    office 0.34M / 1.46M, veach-bidir 0.60M / 1.08M, window_interior 0.94M / 3.9M,
+    ``caustic.xml`` (0.16 deposits a photon; 8.6 % of its image's rex light sharp) 2.1M /
+    8.0M. A scene seen mostly through non-Lambertian surfaces needs few. Session 28's rule (4 × split_limit per bucket everywhere) gave the
     office's ceiling-lit walls 7e-4 of ``check``'s bias part and the Cornell box 6e-5: the
     image's need differs tenfold between scenes at one fill, which the noise model measures.
 
