@@ -1343,6 +1343,41 @@ def probe_shoot(scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_
     return guide, float(yields.sum()) / n, float(len(records["rex"])) / n, records
 
 
+def size_cells(tables, rex, u, v):
+    """``(cell, ix, iy)``: the size cell (index into the size pass's cells) of points ``(u, v)``
+    on rexes ``rex`` (numpy), and their cell coordinates within their rex's size grid."""
+    sizes = tables.rex_size_level.astype(np.int64)
+    res = np.left_shift(1, sizes[rex])
+    ix = np.minimum((np.asarray(u, np.float64) * res).astype(np.int64), res - 1)
+    iy = np.minimum((np.asarray(v, np.float64) * res).astype(np.int64), res - 1)
+    return tables.rex_size_offset[rex] + iy * res + ix, ix, iy
+
+
+def probe_cell_sums(tables, records):
+    """``(Σw, Σw², Σw of sharp light)`` per size cell of the probe shoot's ``records`` (w: a
+    record's channel-mean flux; Σw² with each record's ``weight_scale``, as the light guide
+    will shoot; sharp: ``records["sharp"]``, zeros without it)."""
+    w = np.asarray(records["flux"], np.float64).mean(axis=1)
+    rc, _, _ = size_cells(tables, np.asarray(records["rex"], np.int64), records["u"],
+                          records["v"])
+    s1 = np.bincount(rc, weights=w, minlength=tables.size_cells)
+    s2 = np.bincount(rc, weights=w * w * records.get("weight_scale", 1.0),
+                     minlength=tables.size_cells)
+    sharp = records.get("sharp")
+    s1_sharp = np.bincount(rc, weights=w * sharp, minlength=tables.size_cells) \
+        if sharp is not None else np.zeros(tables.size_cells)
+    return s1, s2, s1_sharp
+
+
+def hit_cells(tables, hits):
+    """``(cell, area)``: the size cell of each of the size pass's ``hits`` and its world area
+    (∞ where it has none, so that Σw / area reads 0)."""
+    rex = hits["rex"]
+    cell, ix, iy = size_cells(tables, rex, hits["u"], hits["v"])
+    area = tables.bucket_area(rex, tables.rex_size_level.astype(np.int64)[rex], ix, iy)
+    return cell, np.where(area > 0, area, np.inf)
+
+
 def predicted_noise(hits, known, records, tables, film, n_probe: int, model_pixels=None):
     """``(relmse, whole, sharp)``: the block relMSE the rexes' photon noise adds to the image,
     times the photon count; the share of the image's radiance that pixels read from rexes at
@@ -1372,27 +1407,9 @@ def predicted_noise(hits, known, records, tables, film, n_probe: int, model_pixe
     ``None``: every pixel of the film). Channel means throughout."""
     if not len(hits.get("rex", ())) or not len(records["rex"]):
         return 0.0, 0.0, 0.0
-    sizes = tables.rex_size_level.astype(np.int64)
-
-    def cells(rex, u, v):
-        res = np.left_shift(1, sizes[rex])
-        ix = np.minimum((u * res).astype(np.int64), res - 1)
-        iy = np.minimum((v * res).astype(np.int64), res - 1)
-        return tables.rex_size_offset[rex] + iy * res + ix, ix, iy
-
-    w = np.asarray(records["flux"], np.float64).mean(axis=1)
-    rc, _, _ = cells(np.asarray(records["rex"], np.int64), np.asarray(records["u"], np.float64),
-                     np.asarray(records["v"], np.float64))
-    s1 = np.bincount(rc, weights=w, minlength=tables.size_cells)
-    s2 = np.bincount(rc, weights=w * w * records.get("weight_scale", 1.0),
-                     minlength=tables.size_cells)
-    sharp = records.get("sharp")
-    s1_sharp = np.bincount(rc, weights=w * sharp, minlength=tables.size_cells) \
-        if sharp is not None else np.zeros(tables.size_cells)
+    s1, s2, s1_sharp = probe_cell_sums(tables, records)
     rex = hits["rex"]
-    hc, hx, hy = cells(rex, hits["u"], hits["v"])
-    area_c = tables.bucket_area(rex, sizes[rex], hx, hy)
-    area_c = np.where(area_c > 0, area_c, np.inf)
+    hc, area_c = hit_cells(tables, hits)
     level = hits["level"]
     area_b = hits["jac"] * np.ldexp(1.0, -2 * level)
     var = np.where(area_b > 0, s2[hc] * n_probe / (area_c * np.maximum(area_b, 1e-300)), 0.0)
