@@ -1245,9 +1245,12 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
     by the noise model); else as Dr.Jit arrays (:func:`device_records`), which the rex build
     reads without a copy to the host and back."""
     max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
-    parts = {k: [] for k in empty_records()}
+    if keep_lanes and not host:
+        raise ValueError("shoot_photons: the photons' lanes are kept in host records only")
+    parts = {k: [] for k in empty_records()}  # host records, per batch
     if keep_lanes:
         parts["lane"] = []
+    batches = []  # device records, per batch: (compact_records, count)
     rays = hits = retraced = 0
     yields = []
     # one entry past the rexes: a gather from an empty array is refused even when masked
@@ -1284,7 +1287,7 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
         yields.append(np.asarray(n_seen, np.uint32))
         if not host:
             # cut to the records now: the batch's buffer (its capacity) is freed at once
-            parts["rex"].append((compact_records(recs, count), count))
+            batches.append((compact_records(recs, count), count))
             del recs
             if bar is not None:
                 bar.update(size)
@@ -1301,7 +1304,7 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
         if bar is not None:
             bar.update(size)
     if not host:
-        records = device_records(parts["rex"])
+        records = device_records(batches)
     else:
         records = {k: np.concatenate(v) if v else (empty_records().get(k) if k != "lane"
                                                     else np.zeros(0, np.int64))
