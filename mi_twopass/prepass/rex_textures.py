@@ -1156,54 +1156,6 @@ def permute(i, n, key):
     return (i + key) % n
 
 
-#: the photon records' Dr.Jit arrays: name, type and values per record
-_RECORD_ARRAYS = (("rex", mi.UInt32, 1), ("u", mi.Float, 1), ("v", mi.Float, 1),
-                  ("flux", mi.Float, 3), ("depth", mi.UInt32, 1))
-
-
-def compact_records(buffers, count: int) -> tuple:
-    """The first ``count`` records of a light-pass batch's buffers (as :func:`_photon_trace`
-    filled them: rex, u, v, flux channel-interleaved, depth), copied into arrays of their
-    size (evaluated: the buffers can go)."""
-    out = tuple(dr.gather(cls, buf, dr.arange(mi.UInt32, k * count)) if count else cls()
-                for (_, cls, k), buf in zip(_RECORD_ARRAYS, buffers))
-    dr.eval(*out)
-    return out
-
-
-def device_records(batches) -> dict:
-    """The records of the light pass's batches (``(arrays, count)`` of each, their arrays from
-    :func:`compact_records`) as one set of Dr.Jit arrays: ``rex`` (UInt32), ``u``, ``v``
-    (Float), ``flux`` (Float, 3 per record, channel-interleaved) and ``depth`` (UInt32), one
-    batch after the other. Kept in Dr.Jit for the rex build (:func:`sort_records`,
-    :func:`deposit`): the office at 256² (6.1 M records) copied them into numpy and back.
-    ``batches`` is emptied as it is copied (each batch freed once it is). Offsets are opaque
-    (a literal would compile the copy anew for every batch size)."""
-    if len(batches) == 1:
-        arrays, _ = batches.pop()
-        return {name: a for (name, _, _), a in zip(_RECORD_ARRAYS, arrays)}
-    total = sum(count for _, count in batches)
-    out = {name: dr.zeros(cls, k * total) for name, cls, k in _RECORD_ARRAYS}
-    offset = 0
-    while batches:
-        arrays, count = batches.pop(0)
-        if count:
-            for (name, _, k), a in zip(_RECORD_ARRAYS, arrays):
-                dr.scatter(out[name], a, dr.arange(mi.UInt32, k * count)
-                           + dr.opaque(mi.UInt32, k * offset))
-            dr.eval(*out.values())
-        offset += count
-        del arrays
-    return out
-
-
-def record_count(records) -> int:
-    """The number of photon records, numpy (:func:`empty_records`) or Dr.Jit
-    (:func:`device_records`)."""
-    rex = records["rex"]
-    return len(rex) if isinstance(rex, np.ndarray) else dr.width(rex)
-
-
 def empty_records() -> dict:
     """Photon records (rex, u, v, Φ, depth of the hit), none of them."""
     return {"rex": np.zeros(0, np.uint32), "u": np.zeros(0, np.float32),
@@ -1232,7 +1184,7 @@ def record_capacity(size: int, rate=None) -> int:
 
 
 def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_rex, bar=None,
-                  rate=None, keep_lanes=False, host=True):
+                  rate=None, keep_lanes=False):
     """Trace the photons of ``shoot`` (a :class:`FinalShoot`), :data:`PHOTON_BATCH` per Dr.Jit
     launch; returns (records, rays traced, photons whose first ray hit the scene, each photon's
     deposits on the rexes ``seen_rex`` flags, in lane order, batches traced twice). A batch's
@@ -1241,16 +1193,11 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
     per photon); where the shoot has no such figures, ``rate`` (records per photon expected)
     sizes the first batch's (:func:`record_capacity`) and each later batch's follows the one
     before it. ``keep_lanes``: the records also hold ``lane``, the photon's lane (its top bit
-    :data:`SHARP_BIT`: sharp light). ``host``: the records as numpy arrays (the probe's, read
-    by the noise model); else as Dr.Jit arrays (:func:`device_records`), which the rex build
-    reads without a copy to the host and back."""
+    :data:`SHARP_BIT`: sharp light)."""
     max_depth = 0xFFFFFFFF if settings.max_depth < 0 else settings.max_depth
-    if keep_lanes and not host:
-        raise ValueError("shoot_photons: the photons' lanes are kept in host records only")
-    parts = {k: [] for k in empty_records()}  # host records, per batch
+    parts = {k: [] for k in empty_records()}
     if keep_lanes:
         parts["lane"] = []
-    batches = []  # device records, per batch: (compact_records, count)
     rays = hits = retraced = 0
     yields = []
     # one entry past the rexes: a gather from an empty array is refused even when masked
@@ -1285,13 +1232,6 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
         rays += int(dr.sum(n_rays)[0])
         hits += int(dr.count(first_hit)[0])
         yields.append(np.asarray(n_seen, np.uint32))
-        if not host:
-            # cut to the records now: the batch's buffer (its capacity) is freed at once
-            batches.append((compact_records(recs, count), count))
-            del recs
-            if bar is not None:
-                bar.update(size)
-            continue
         # compact records, 26 bytes each (copies: a view would keep the whole capacity alive)
         parts["rex"].append(np.asarray(recs[0], np.uint32)[:count].copy())
         parts["u"].append(np.asarray(recs[1], np.float32)[:count].copy())
@@ -1303,12 +1243,9 @@ def shoot_photons(scene, tables, shoot, settings, seed, salt, keep_direct, seen_
             parts["lane"].append(np.asarray(recs[5], np.int64)[:count] + start)
         if bar is not None:
             bar.update(size)
-    if not host:
-        records = device_records(batches)
-    else:
-        records = {k: np.concatenate(v) if v else (empty_records().get(k) if k != "lane"
-                                                    else np.zeros(0, np.int64))
-                   for k, v in parts.items()}
+    records = {k: np.concatenate(v) if v else (empty_records().get(k) if k != "lane"
+                                                else np.zeros(0, np.int64))
+               for k, v in parts.items()}
     return records, rays, hits, (np.concatenate(yields) if yields else np.zeros(0, np.uint32)), \
         retraced
 
@@ -1595,7 +1532,7 @@ def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
                   show=show_progress) as bar:
         records, rays, hits, yields, retraced = shoot_photons(
             scene, tables, shoot, settings, seed, _SALT_PHOTON, keep_direct, seen_rex, bar,
-            rate=plan.get("deposits_per_photon"), host=False)
+            rate=plan.get("deposits_per_photon"))
     stats.update(light_rays=rays + pilot_rays, pilot_rays=pilot_rays, photons=shoot.lanes,
                  retraced_batches=retraced,
                  light_hit_percent=100.0 * hits / max(shoot.lanes, 1),
@@ -1859,15 +1796,10 @@ def quadtree_cells(rex, u, v, bits: int):
     quadrant qx + 2·qy that :meth:`Rexes.descend` takes there. Computed by Dr.Jit: millions of
     records (6.8 M on the Cornell box at 128²) are a vectorised kernel's work, not numpy's."""
     n = 1 << bits
-    qx = mi.UInt64(dr.clip(dr.floor(mi.Float64(_on_device(mi.Float, u)) * n), 0, n - 1))
-    qy = mi.UInt64(dr.clip(dr.floor(mi.Float64(_on_device(mi.Float, v)) * n), 0, n - 1))
+    qx = mi.UInt64(dr.clip(dr.floor(mi.Float64(jit(mi.Float, u)) * n), 0, n - 1))
+    qy = mi.UInt64(dr.clip(dr.floor(mi.Float64(jit(mi.Float, v)) * n), 0, n - 1))
     morton = _spread_bits(qx) | (_spread_bits(qy) << 1)
-    return qx, qy, (mi.UInt64(_on_device(mi.UInt32, rex)) << (2 * bits)) | morton
-
-
-def _on_device(cls, x):
-    """``x`` as the Dr.Jit array ``cls``: itself where it is one, else a copy of numpy's."""
-    return x if isinstance(x, cls) else jit(cls, np.asarray(x))
+    return qx, qy, (mi.UInt64(jit(mi.UInt32, rex)) << (2 * bits)) | morton
 
 
 def record_caps(tables, cap, rex, qx, qy, bits: int, max_level: int):
@@ -1903,9 +1835,9 @@ def sort_records(tables, records, cap, bits: int, max_level: int):
     ``bench --prepass --quick --integrators rex``, two runs each,
     docs/results/rex-build-2026-11-27). Ties (equal keys) may come in any order: nothing built
     from them depends on it."""
-    if record_count(records) == 0:
+    if len(records["rex"]) == 0:
         return mi.UInt32(), np.zeros(0, np.uint64), np.zeros(0, np.int16)
-    rex = _on_device(mi.UInt32, records["rex"])
+    rex = jit(mi.UInt32, records["rex"])
     qx, qy, d_keys = quadtree_cells(rex, records["u"], records["v"], bits)
     d_cap = record_caps(tables, cap, rex, qx, qy, bits, max_level)
     dr.eval(d_keys, d_cap)
@@ -1927,24 +1859,20 @@ def deposit(records, order, sorted_leaf, n_nodes: int, classes: int, max_depth: 
     of depth k goes to the deepest class it belongs to, c0 = min(C − 1, max_depth − 2 − k).
     The records are read in key order, a leaf's deposits neighbours, in one Dr.Jit kernel."""
     sums = np.zeros((n_nodes * classes * 2, 3))
-    n_rec = record_count(records)
+    n_rec = len(records["rex"])
     if n_rec == 0:
         return sums
     flux_in = records["flux"]
-    if isinstance(flux_in, np.ndarray):
-        flat = jit(mi.Float, np.ascontiguousarray(flux_in, np.float32).ravel())
-        depth_in = jit(mi.UInt32, records["depth"].astype(np.uint32))
-    else:  # device_records: already flat, channel-interleaved
-        flat, depth_in = flux_in, records["depth"]
-    fmax = float(dr.max(flat)[0])
+    fmax = float(flux_in.max())
     k = min(32, 52 - int(n_rec).bit_length())
     quantum = fmax / 2.0**k if fmax > 0 and np.isfinite(fmax) else 1.0
-    depth = dr.gather(mi.UInt32, depth_in, order)
+    depth = dr.gather(mi.UInt32, jit(mi.UInt32, records["depth"].astype(np.uint32)), order)
     bins = jit(mi.UInt32, np.asarray(sorted_leaf, np.uint32)) * (2 * classes)
     if max_depth >= 0:
         c0 = dr.clip(mi.Int32(max_depth - 2) - mi.Int32(depth), 0, classes - 1)
         bins += 2 * mi.UInt32(c0)
     bins += dr.select(depth > 0, 1, 0)
+    flat = jit(mi.Float, np.ascontiguousarray(flux_in, np.float32).ravel())
     totals = [dr.zeros(mi.Float64, len(sums)) for _ in range(3)]
     # the quantum follows the photons and the bins' count the tree: as literals they made
     # the kernel new for every seed (the LLVM default for a small target, ReduceMode.Expand,
@@ -1971,7 +1899,7 @@ def build_rex_tree(tables, records, cap, settings, scene=None, seed=0) -> Rexes:
     ends, and its children's runs from a binary search of their key prefixes, so each level
     costs the nodes it holds, not the photons (a Cornell box at 1M photons: 2.8M records)."""
     R = tables.count
-    n_rec = record_count(records)
+    n_rec = len(records["rex"])
     bits = key_bits(R)
     max_level = min(int(settings.max_level), bits)
     order, keys, rec_cap = sort_records(tables, records, cap, bits, max_level)
@@ -2133,6 +2061,6 @@ def build(scene, settings: RexSettings, seed: int = 0, progress: bool = True,
     stats.update(size_rays=size_rays, size_seconds=t1 - t0, light_seconds=t2 - t1,
                  rex_build_seconds=t3 - t2, rexes=tables.count, rex_nodes=rexes.n_nodes,
                  rex_leaves=rexes.n_leaves, rex_max_depth=rexes.max_depth,
-                 photon_records=record_count(records), exposure_rays=rexes.exposure_rays,
+                 photon_records=int(len(records["rex"])), exposure_rays=rexes.exposure_rays,
                  prepass_rays=size_rays + light_stats["light_rays"] + rexes.exposure_rays)
     return RexPrepass(tables, rexes, cap, seen, settings, stats)

@@ -475,30 +475,12 @@ def test_rex_build_follows_the_split_rule_record_by_record():
     brute = inside[leaf].astype(np.float64) @ records["flux"].astype(np.float64)
     assert np.allclose(rexes.flux_indirect[leaf], brute, rtol=1e-6, atol=1e-9)
     assert not rexes.flux_direct.any()
-    # the light pass leaves the records in a random order: the rexes are the same bit for bit;
-    # and the same from the records as the light pass hands them over, in Dr.Jit arrays
-    # (device_records: the flux channel-interleaved, the depth 32-bit)
+    # the light pass leaves the records in a random order: the rexes are the same bit for bit
     perm = rng.permutation(n)
     again = build_rex_tree(tables, {k: a[perm] for k, a in records.items()}, cap, settings)
-    batches = []
-    for part in np.array_split(perm, 3):  # three light-pass batches, records at their start,
-        # and padding past them (the buffer's unused capacity)
-        pad = 5
-        bufs = (mi.UInt32(np.append(records["rex"][part], np.zeros(pad, np.uint32))),
-                mi.Float(np.append(u[part], np.zeros(pad, np.float32))),
-                mi.Float(np.append(v[part], np.zeros(pad, np.float32))),
-                mi.Float(np.append(records["flux"][part].ravel(), np.zeros(3 * pad, np.float32))),
-                mi.UInt32(np.append(records["depth"][part].astype(np.uint32),
-                                    np.zeros(pad, np.uint32))),
-                mi.UInt32(1))
-        batches.append((rex_textures.compact_records(bufs, len(part)), len(part)))
-    device = rex_textures.device_records(batches)
-    assert rex_textures.record_count(device) == n
-    on_device = build_rex_tree(tables, device, cap, settings)
     for name in ("node_rex", "level", "ix", "iy", "child", "count", "flux_direct",
                  "flux_indirect"):
         assert np.array_equal(getattr(again, name), getattr(rexes, name)), name
-        assert np.array_equal(getattr(on_device, name), getattr(rexes, name)), name
 
 
 def test_automatic_photon_budget_follows_the_image():
