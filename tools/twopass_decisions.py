@@ -1,9 +1,9 @@
 """What twopass builds and chooses, and why, per scene and samples per pixel.
 
     .venv/bin/python tools/twopass_decisions.py scenes_xml/*.xml ../shared/scenes/*/*.xml \\
-        [--res 256] [--spp 64,256,1024] [--why]
+        [--res 256] [--spp 64,256,1024] [--seeds 0,1,2] [--why]
 
-One render per (scene, spp) with a fresh ``twopass``, timed to the numpy copy. Prints one
+One render per (scene, spp, render seed) with a fresh ``twopass``, timed to the numpy copy. Prints one
 Markdown row each: the choice, the render's seconds, the pilot's and prepasses' seconds
 (``prepass_seconds``) and the candidates built. ``--why`` adds, under each row, every
 candidate's best case; its measured score, variance and image mean over path's pilot; the
@@ -35,20 +35,22 @@ def main():
     ap.add_argument("--res", type=int, default=256, help="film's longer side in pixels")
     ap.add_argument("--spp", default="64,256,1024", help="comma-separated samples per pixel")
     ap.add_argument("--why", action="store_true", help="best cases, scores and skip reasons")
+    ap.add_argument("--seeds", default="0", help="comma-separated render seeds (a row each)")
     a = ap.parse_args()
-    print("| scene | spp | choice | seconds | pilot + prepasses s | built |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| scene | spp | seed | choice | seconds | pilot + prepasses s | built |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for path in a.scenes:
         scene = load_scene(path, film_res=a.res)
-        for spp in (int(s) for s in a.spp.split(",")):
+        for spp, seed in ((int(n), int(k)) for n in a.spp.split(",")
+                          for k in a.seeds.split(",")):
             integrator = mi.load_dict({"type": "twopass"})
             t0 = time.perf_counter()
-            mi.render(scene, integrator=integrator, spp=spp).numpy()
+            mi.render(scene, integrator=integrator, spp=spp, seed=seed).numpy()
             dr.sync_thread()
             seconds = time.perf_counter() - t0
             s = integrator.stats
             built = ", ".join(short(n) for n in s["twopass_candidates"])
-            print(f"| {scene_label(path)} | {spp} | {short(s['twopass_choice'])} | "
+            print(f"| {scene_label(path)} | {spp} | {seed} | {short(s['twopass_choice'])} | "
                   f"{seconds:.2f} | {s['prepass_seconds']:.2f} | {built} |", flush=True)
             if a.why:
                 for n, best in s["twopass_best_case"].items():
