@@ -2,12 +2,14 @@
 
     .venv/bin/python tools/load_order.py scenes_xml/office.xml [--res 64] [--spp 4] [--serial]
         [--integrators path,radiosity_gather,spike_gather,radiance_cache,rex,twopass]
+        [--processes 2]
 
-Loads the scene in two fresh Python processes and prints, per process, a fingerprint of the
+Loads the scene in ``--processes`` fresh Python processes (two by default) and prints, per
+process, a fingerprint of the
 order of ``scene.shapes()`` (each shape's primitive count and bounding box, in order), of
 ``scene.emitters()`` (each one's shape's bounding box, or its class and bounds) and of each
-integrator's image (same render seed, a fresh integrator), with the image's mean; then whether
-the two processes agree. Mitsuba's XML loader builds shapes in parallel; ``--serial`` loads
+integrator's image (same render seed, a fresh integrator), with the image's mean; then, per fingerprint, how many distinct values the processes gave
+("same" for one). ``--integrators ''`` renders nothing (orders only). Mitsuba's XML loader builds shapes in parallel; ``--serial`` loads
 with ``parallel=False``. docs/design.md ("Timing and randomness") cites what it found.
 """
 import argparse
@@ -31,7 +33,7 @@ def emitter_key(e):
     return str(shape.bbox()) if shape is not None else e.class_name() + str(e.bbox())
 out = {"shapes": digest([(s.primitive_count(), str(s.bbox())) for s in scene.shapes()]),
        "emitters": digest([emitter_key(e) for e in scene.emitters()])}
-for name in names:
+for name in filter(None, names):
     img = np.ascontiguousarray(np.asarray(
         mi.render(scene, integrator=mi.load_dict({"type": name}), spp=spp, seed=3)))
     out[name] = [hashlib.md5(img.tobytes()).hexdigest()[:12], float(img.mean())]
@@ -48,9 +50,10 @@ def main():
                     "scene file's own film size)")
     ap.add_argument("--integrators", default="path",
                     help="comma-separated plugin names rendered in each process")
+    ap.add_argument("--processes", type=int, default=2)
     a = ap.parse_args()
     runs = []
-    for k in range(2):
+    for k in range(max(a.processes, 2)):
         out = subprocess.run([sys.executable, "-c", CHILD, a.scene, str(a.res), str(a.spp),
                               "0" if a.serial else "1", a.integrators], capture_output=True,
                              text=True, check=True)
@@ -60,11 +63,14 @@ def main():
         print(f"process {k + 1}: shapes order {runs[-1]['shapes']}, emitters order "
               f"{runs[-1]['emitters']}; {images}")
     for key in runs[0]:
-        same = runs[0][key] == runs[1][key]
-        if not same and isinstance(runs[0][key], list) and runs[0][key][1] == runs[1][key][1]:
-            verdict = "different bytes, the same mean"
+        values = {json.dumps(r[key]) for r in runs}
+        means = {json.dumps(r[key][1]) for r in runs} if isinstance(runs[0][key], list) else values
+        if len(values) == 1:
+            verdict = "same"
+        elif len(means) == 1:
+            verdict = f"{len(values)} different byte patterns, the same mean"
         else:
-            verdict = "same" if same else "DIFFERENT"
+            verdict = f"DIFFERENT: {len(values)} distinct in {len(runs)} processes"
         print(f"{key}: {verdict}")
 
 

@@ -53,6 +53,10 @@ def main():
             print(f"| {scene_label(path)} | {spp} | {seed} | {short(s['twopass_choice'])} | "
                   f"{seconds:.2f} | {s['prepass_seconds']:.2f} | {built} |", flush=True)
             if a.why:
+                for n, m in s["twopass_candidates"].items():
+                    if n not in s["twopass_best_case"]:  # path: the pilot every score reads
+                        print(f"    {short(n)}: score {m['score']:.3g}, relative variance "
+                              f"{m['relative_variance']:.3g}")
                 for n, best in s["twopass_best_case"].items():
                     m = s["twopass_candidates"].get(n)
                     got = (f"score {m['score']:.3g}, variance {m['relative_variance']:.3g}, "

@@ -145,10 +145,11 @@ class RexIntegrator(TwoPassIntegrator):
     rexes past their cap, and veach-bidir's image mean read +0.98 % of the reference with the
     noise budget alone against +0.64 % with that floor. The budget lies within [2^16, 2^24]
     photons and keeps the records below 8M (memory). Photons at 128² / 256²
-    (``stats["photons"]``, session 30): the Cornell box 0.065M (the floor) / 0.13M, the
-    office 0.34M / 1.46M, veach-bidir 0.60M / 1.08M, window_interior 0.94M / 3.9M,
-    ``caustic.xml`` (0.16 deposits a photon; 8.6 % of its image's rex light sharp) 2.1M /
-    8.0M. A scene seen mostly through non-Lambertian surfaces needs few. Session 28's rule (4 × split_limit per bucket everywhere) gave the
+    (``stats["photons"]``, session 30, ``tools/rex_budget.py``): the Cornell box 0.065M (the
+    floor) / 0.13M, the office 0.34M / 1.44M, veach-bidir 0.60M / 1.08M, window_interior
+    0.94M / 3.9M, ``caustic.xml`` (0.16 deposits a photon; 8.6 % of its image's rex light
+    sharp) 2.1M / 8.0M. A scene seen mostly through non-Lambertian surfaces needs few.
+    Session 28's rule (4 × split_limit per bucket everywhere) gave the
     office's ceiling-lit walls 7e-4 of ``check``'s bias part and the Cornell box 6e-5: the
     image's need differs tenfold between scenes at one fill, which the noise model measures.
 

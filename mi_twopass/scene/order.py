@@ -1,20 +1,21 @@
 """The scene's shapes in an order that is the same every time the scene is loaded.
 
 Mitsuba 3.9 hands out ``scene.shapes()`` (and ``scene.shapes_dr()``) in an order that changes
-from one load of a scene file to the next, in one process or across processes: three loads of
-scenes_xml/mixed_room.xml gave three orders, with ``mi.load_file(..., parallel=False)`` too. A
-prepass that numbered patches or rexes in that order drew its random points for other surfaces
-each time, so one seed gave a statistically different image in every run (mixed_room at 48 px,
-4 spp: radiosity_gather's mean 0.2683 and 0.2663 in two processes), where Mitsuba's ``path``
-gave the same bytes. Every prepass walks the shapes through :func:`stable_shapes` instead;
-``tests/scene/test_order.py`` loads one room with its shapes listed in two orders.
+from one load of a scene file to the next, in one process or across processes, with
+``mi.load_file(..., parallel=False)`` too. A prepass that numbered patches or rexes in that
+order drew its random points for other surfaces each time, so one seed gave a statistically
+different image in every run, where Mitsuba's ``path`` gave the same bytes. Every prepass walks
+the shapes through :func:`stable_shapes` instead; ``tests/scene/test_order.py`` loads one room
+with its shapes listed in two orders. ``tools/load_order.py SCENE --integrators
+path,radiosity_gather,spike_gather,radiance_cache,rex,twopass`` renders in two processes and
+compares: on scenes_xml/mixed_room.xml all six now give the same bytes (at session 29's code
+the four prepass integrators differed).
 
 What stays: where Mitsuba reorders the *emitters* too, ``path``'s own image changes from one
 load to the next, and so do ours (emitter sampling, and the photons and particles each emitter
-is given). In six loads each: six orders on scenes_xml/many_lights.xml, office.xml and
-../shared/scenes/staircase2, two on veach-bidir, one on the other seven scenes (four of them
-have one emitter). ``tools/load_order.py SCENE --integrators path,rex,...`` renders in two
-processes and compares: on mixed_room every integrator now gives the same bytes twice.
+is given): ``tools/load_order.py SCENE --integrators '' --processes 6`` read six emitter orders
+in six processes on many_lights.xml, office.xml and ../shared/scenes/staircase2, one or two on
+veach-bidir, one on mixed_room.
 
 The key is what a shape *is*, not where it sits in memory: its id, its class, its primitive
 and vertex counts, its bounding box and the ids of its BSDF and emitter (host values all: no
