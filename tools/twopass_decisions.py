@@ -9,8 +9,9 @@ Markdown row each: the choice, the render's seconds, the pilot's and prepasses' 
 candidate's best case; its measured score, variance and image mean over path's pilot; the
 reason each skipped one was not built; and the bias tests of a suspect winner
 (``twopass_best_case``, ``twopass_candidates``, ``twopass_skipped``,
-``twopass_bias_checks``). Run two checkouts alternately (``PYTHONPATH``) to compare a change
-of the cost model (docs/results/rex-gate-2026-11-28).
+``twopass_bias_checks``), and path's caustic variance as rex's photons predicted it beside
+the pilot's (``twopass_caustic_prediction``). Run two checkouts alternately (``PYTHONPATH``)
+to compare a change of the cost model (docs/results/rex-gate-2026-11-28).
 """
 import argparse
 import time
@@ -53,6 +54,11 @@ def main():
             print(f"| {scene_label(path)} | {spp} | {seed} | {short(s['twopass_choice'])} | "
                   f"{seconds:.2f} | {s['prepass_seconds']:.2f} | {built} |", flush=True)
             if a.why:
+                cp = s.get("twopass_caustic_prediction")
+                if cp:
+                    print(f"    path's caustic variance: {cp['predicted']:.3g} predicted by "
+                          f"photons, {cp['pilot']:.3g} in the pilot (sharp light "
+                          f"{cp['sharp_share']:.2%} of the image)")
                 for n, m in s["twopass_candidates"].items():
                     if n not in s["twopass_best_case"]:  # path: the pilot every score reads
                         print(f"    {short(n)}: score {m['score']:.3g}, relative variance "

@@ -29,7 +29,9 @@ T_c + N·t_c seconds and to reach relMSE v_c/N + b_c²; the candidate with the s
 **Only what pays is built.** Before a candidate's prepass is built, its *best case* is bounded
 from the path pilot's variance split: a technique can at most remove the variance of the parts
 it serves (spike lists: the direct part; a far field: the indirect part; rexes: everything, but
-only where caustics carry at least :data:`CAUSTIC_SHARE` of the variance), it costs at least what
+only where caustics carry at least :data:`CAUSTIC_SHARE` of the variance, the caustic part read
+as the larger of the pilot's and the one rex's probe photons predict where the scene has a
+specular surface: :mod:`mi_twopass.prepass.sharp_light`), it costs at least what
 ``path`` costs per sample (every one traces the camera ray, a shadow ray and a BSDF ray per
 vertex) and its prepass at least 0 s. A candidate whose best case does not beat the best score
 measured so far by :data:`MIN_GAIN` is not built; nor is any once the pilot and the prepasses
@@ -219,6 +221,8 @@ class SceneTraits:
     emitters: int
     lambertian: bool
     max_depth: int
+    #: some surface has a delta (specular) lobe: light can reach a diffuse surface through it
+    specular: bool = True
 
 
 def structural_reason(c: Composition, traits: SceneTraits) -> str | None:
@@ -248,6 +252,14 @@ class VarianceParts:
         (0 at least; the parts' covariances are ignored)."""
         removed = sum(getattr(self, part) for part in c.serves)
         return max(self.total - removed, 0.0)
+
+    def with_caustic(self, predicted: float) -> "VarianceParts":
+        """The parts with the caustic part at least ``predicted`` and the total raised by as
+        much: a pilot of a few hundred samples underestimates light that comes as rare bright
+        samples, which photons predict (:mod:`mi_twopass.prepass.sharp_light`)."""
+        extra = max(predicted - self.caustic, 0.0)
+        return VarianceParts(total=self.total + extra, direct=self.direct,
+                             caustic=self.caustic + extra, indirect=self.indirect)
 
 
 @dataclass
@@ -659,6 +671,10 @@ class Decision:
     #: through specular surfaces, :mod:`mi_twopass.compose.unsampled`); 0.0 where none was
     #: found or no pilot ran
     unsampled: float = 0.0
+    #: path's relative variance per sample on sharp light as the photons predict it and as
+    #: the pilot measured it, where the photons were asked
+    #: (:func:`mi_twopass.compose.choose.predict_caustics`); None where they were not
+    caustic_prediction: dict | None = None
 
     def reason(self) -> str:
         if self.chosen.name not in self.measured:  # forced, or no prepass could fit

@@ -12,8 +12,10 @@ import mitsuba as mi
 
 from .. import units
 from ..prepass.rex_textures import (BUCKET_PIXELS, KIND_NONE, MAX_LEVEL, NO_SHAPE, SPLIT_LIMIT,
-                                    RexSettings, photon_budget)
+                                    RexSettings, check_no_media)
 from ..prepass.rex_textures import build as build_rexes
+from ..prepass.sharp_light import SharpLight
+from ..prepass.sharp_light import measure as measure_sharp_light
 from ..rays import spawn_ray
 from .base import TwoPassIntegrator, read_bool, read_choice, read_float, read_int
 from .pathtrace import (by_component, next_hit, path_start, russian_roulette,
@@ -311,16 +313,28 @@ class RexIntegrator(TwoPassIntegrator):
                        max(MIN_PHOTONS, round(self.photons_per_pixel * pixels))))
 
     def photon_budget(self, scene, seed=0, sensor=None) -> int:
-        """The photons the prepass will shoot (the image's need is measured: size pass and probe
-        shoot, :func:`~mi_twopass.prepass.rex_textures.photon_budget`; remembered for the
-        scene, sensor, settings and seed it was measured for)."""
+        """The photons the prepass will shoot: ``photons`` where it is set, else the image's
+        need, measured by a size pass and a probe shoot (:meth:`sharp_light`)."""
+        settings = self.rex_settings(scene)
+        if settings.photons > 0:
+            return int(settings.photons)
+        return self.sharp_light(scene, seed, sensor).photons
+
+    def sharp_light(self, scene, seed=0, sensor=None) -> SharpLight:
+        """The size pass and probe shoot read for twopass's cost model: the photons the image
+        needs and path's predicted variance on sharp light
+        (:func:`~mi_twopass.prepass.sharp_light.measure`); remembered for the scene, sensor,
+        settings and seed it was measured for. Refuses a scene with media as the prepass
+        does."""
         if sensor is None and len(scene.sensors()):
             sensor = scene.sensors()[0]
         key = self.prepass_key(scene, sensor, seed)
-        memo = getattr(self, "_photon_memo", None)
+        memo = getattr(self, "_sharp_memo", None)
         if memo is None or memo[0] is not scene or memo[1] != key:
-            n = photon_budget(scene, self.rex_settings(scene), self.prepass_seed(seed), sensor)
-            self._photon_memo = memo = (scene, key, n)
+            check_no_media(scene)
+            found = measure_sharp_light(scene, self.rex_settings(scene),
+                                        self.prepass_seed(seed), sensor)
+            self._sharp_memo = memo = (scene, key, found)
         return memo[2]
 
     def rex_settings(self, scene) -> RexSettings:

@@ -59,7 +59,11 @@ class TwoPassChooser(TwoPassIntegrator):
            would pass 5 % of the render's samples, at least 256:
            :func:`mi_twopass.compose.pilot.pixel_count`; Mitsuba's path estimator)
            with its light split into direct, caustic (L S+ D ...) and other indirect parts,
-           each part's relative variance measured
+           each part's relative variance measured; where the caustic part is below 20 %
+           of the whole and some surface is specular, rex's size pass and probe shoot
+           predict path's variance on light through delta bounces (rare bright samples a
+           pilot misses: :mod:`mi_twopass.prepass.sharp_light`), and the caustic part is
+           the larger of the two (``twopass_caustic_prediction``)
         2. for each composition the forced choices allow, by its best case (path's variance
            less the parts it serves, at path's cost, no prepass): skip it when the best case
            cannot beat the best measured so far by 1.25×, once the pilot and the prepasses
@@ -105,6 +109,8 @@ class TwoPassChooser(TwoPassIntegrator):
     candidate tested again: samples per pixel, b², its standard error, outcome),
     ``twopass_probe`` (path's render time as probed: fixed part, seconds per spp, the
     render's; None where not probed), ``twopass_path_unsampled_share`` (above),
+    ``twopass_caustic_prediction`` (path's caustic variance as photons predicted it and as the
+    pilot measured it, and sharp light's share of the image; None where not asked),
     ``pilot_seconds`` (the probe, the pilot and the tests) and
     ``prepass_seconds`` (the pilot and every prepass built, the chosen one's included).
 
@@ -292,6 +298,7 @@ class TwoPassChooser(TwoPassIntegrator):
                 "fixed_seconds": d.probe.fixed, "seconds_per_spp": d.probe.per_spp,
                 "render_seconds": d.probe.seconds(d.spp)},
             "twopass_path_unsampled_share": d.unsampled,
+            "twopass_caustic_prediction": d.caustic_prediction,
             "pilot_seconds": choice.seconds["pilot"],
         }
 

@@ -1280,6 +1280,7 @@ def probe_shoot(scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_
                                                  tree.iy[leaf], power) \
         if settings.light_guide and guide.active else np.ones(len(leaf))
     records["photons"] = n
+    records["emitter"] = tree.em[leaf]  # index into scene.emitters()
     return guide, float(yields.sum()) / n, float(len(records["rex"])) / n, records
 
 
@@ -1453,12 +1454,32 @@ def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
     shoot, a small part of the prepass)."""
     if settings.photons > 0:
         return int(settings.photons)
+    m = measure_probe(scene, settings, seed, sensor)
+    return photon_need(m.need, settings, m.power, *m.probe, tables=m.tables)[0]
+
+
+@dataclass
+class ProbeMeasure:
+    """What the size pass and the probe shoot measure before any photon is shot for good:
+    the rex tables, the size pass's ``need`` (:func:`size_pass`), the emitters' power
+    (:func:`probe_emitters`) and the probe's ``(guide, visible rate, all rate, records)``
+    (:func:`probe_shoot`)."""
+
+    tables: "RexTables"
+    need: dict
+    power: np.ndarray
+    probe: tuple
+
+
+def measure_probe(scene, settings, seed: int = 0, sensor=None) -> ProbeMeasure:
+    """The size pass and the probe shoot of :func:`photon_budget` (a small part of the
+    prepass: 0.1-0.2 s at 256² on the corpus once its kernels are compiled)."""
     tables = RexTables(scene)
     _, seen, _, need = size_pass(scene, tables, settings, seed, sensor)
     power, adapt_dim = probe_emitters(scene, seed, tables.bounds)
     probe = probe_shoot(scene, tables, seen, settings, seed, power, adapt_dim,
                         settings.direct == "rex")
-    return photon_need(need, settings, power, *probe, tables=tables)[0]
+    return ProbeMeasure(tables, need, power, probe)
 
 
 def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None):

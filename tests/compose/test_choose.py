@@ -11,7 +11,7 @@ import pytest
 import mi_twopass  # noqa: F401
 from mi_twopass.compose import cost
 from mi_twopass.compose.choose import (candidate_estimator, check_bias, choose,
-                                       path_sum_estimator)
+                                       path_sum_estimator, predict_caustics, traits)
 from mi_twopass.compose.pilot import PilotSettings, choose_pixels, pilot
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -237,3 +237,39 @@ def test_where_the_probe_finds_paths_render_shorter_than_any_prepass_no_pilot_ru
     calls.clear()
     d = run(short, probe="off").decision  # "off" (and "auto" on the CPU): no probe
     assert not calls and d.probe is None and cost.COMPOSITIONS[0].name in d.measured
+
+
+def test_caustics_a_pilot_missed_are_predicted_from_rexs_photons():
+    """A light inside a glass sphere: read as if the pilot had caught none of its rare
+    samples, the caustic part is raised to the photons' prediction and path's total with it;
+    where no surface is specular the photons are not asked; a scene rex refuses (fog) has its
+    rex rows skipped with the reason."""
+    pilot_parts = cost.VarianceParts(total=0.5, direct=0.3, caustic=0.0, indirect=0.2)
+    scene = mi.load_dict(hs.glass_light())
+    tp = chooser()
+    decision = cost.Decision(chosen=cost.COMPOSITIONS[0], spp=SPP)
+    raised, added = predict_caustics(scene, scene.sensors()[0], pilot_parts, tp.allowed,
+                                     tp.candidate, traits(scene, -1), decision)
+    predicted = decision.caustic_prediction["predicted"]
+    assert predicted > 1.0 and decision.caustic_prediction["pilot"] == 0.0
+    assert raised.caustic == pytest.approx(predicted)
+    assert added == pytest.approx(predicted) and raised.total == pytest.approx(0.5 + predicted)
+
+    box = mi.load_dict(hs.box())
+    decision = cost.Decision(chosen=cost.COMPOSITIONS[0], spp=SPP)
+    assert not traits(box, -1).specular
+    assert predict_caustics(box, box.sensors()[0], pilot_parts, tp.allowed, tp.candidate,
+                            traits(box, -1), decision) == (pilot_parts, 0.0)
+    assert decision.caustic_prediction is None
+
+    d = hs.glass_light()
+    d["sensor"]["medium"] = {"type": "homogeneous", "sigma_t": 0.05,
+                             "albedo": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
+    fog = mi.load_dict(d)
+    decision = cost.Decision(chosen=cost.COMPOSITIONS[0], spp=SPP)
+    assert predict_caustics(fog, fog.sensors()[0], pilot_parts, tp.allowed, tp.candidate,
+                            traits(fog, -1), decision) == (pilot_parts, 0.0)
+    rex_rows = [c.name for c in tp.allowed if c.caustics == "rex"]
+    assert rex_rows and all(decision.skipped[n].startswith("refused: rex cannot render "
+                                                           "participating media")
+                            for n in rex_rows)

@@ -32,6 +32,14 @@ def test_best_case_removes_only_the_parts_a_technique_serves():
     assert parts.best_case(rows["emitter", "rex"]) == pytest.approx(0.0, abs=1e-12)
 
 
+def test_a_predicted_caustic_part_raises_the_total_only_where_the_pilot_saw_less():
+    parts = cost.VarianceParts(total=1.0, direct=0.6, caustic=0.1, indirect=0.3)
+    raised = parts.with_caustic(5.0)
+    assert (raised.total, raised.caustic) == pytest.approx((5.9, 5.0))
+    assert (raised.direct, raised.indirect) == (0.6, 0.3)
+    assert parts.with_caustic(0.05) == parts  # the pilot's own, where it saw more
+
+
 def test_structural_reasons():
     rows = {(c.direct, c.indirect): c for c in cost.COMPOSITIONS}
     one = cost.SceneTraits(emitters=1, lambertian=True, max_depth=-1)

@@ -121,6 +121,8 @@ def test_no_rex_without_caustics_and_stats_say_why():
     rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
     assert rex_row.name not in tp.stats["twopass_candidates"]
     assert "caustics carry 0.0%" in tp.stats["twopass_skipped"][rex_row.name]
+    # no specular surface: no light is sharp, so rex's photons were not asked
+    assert tp.stats["twopass_caustic_prediction"] is None
     spikes = [c.name for c in cost.COMPOSITIONS if c.direct == "spike"]
     assert all("1 emitter" in tp.stats["twopass_skipped"][n] for n in spikes)
     chosen = tp.stats["twopass_choice"]
