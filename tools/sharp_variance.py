@@ -8,9 +8,14 @@ path's predicted relative variance per sample on it (the model, per emitter radi
 module's docstring). twopass reads the same figure where its path pilot finds caustics carry
 little of path's variance (:func:`mi_twopass.compose.choose.choose`): a pilot of a few
 hundred samples catches such light now and then, photons every time. Compare it with path's
-relMSE × spp in the harness (``bench``, path's curve).
+relMSE × spp in the harness (``bench``, path's curve). Measures twice per scene and prints
+both times: the first compiles (or loads) its kernels, the second is what the figure costs
+twopass once they are cached.
 """
 import argparse
+import time
+
+import drjit as dr
 
 import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
 from mi_twopass.prepass import rex_textures as R
@@ -24,13 +29,19 @@ def main():
     ap.add_argument("--res", type=int, default=256, help="film's longer side in pixels")
     ap.add_argument("--seed", type=int, default=0, help="the size pass's and probe's seed")
     args = ap.parse_args()
-    print("| scene | sharp share | path's relative variance on sharp light (predicted) |")
-    print("| --- | --- | --- |")
+    print("| scene | sharp share | path's relative variance on sharp light (predicted) | "
+          "seconds (first, second) |")
+    print("| --- | --- | --- | --- |")
     for path in args.scenes:
         scene = load_scene(path, film_res=args.res)
-        found = measure(scene, R.RexSettings(direct="shadow"), args.seed)
-        print(f"| {scene_label(path)} | {found.share:.4f} | {found.relative_variance:.3g} |",
-              flush=True)
+        seconds = []
+        for _ in range(2):  # the second with the kernels the first compiled
+            t0 = time.perf_counter()
+            found = measure(scene, R.RexSettings(direct="shadow"), args.seed)
+            dr.sync_thread()
+            seconds.append(time.perf_counter() - t0)
+        print(f"| {scene_label(path)} | {found.share:.4f} | {found.relative_variance:.3g} | "
+              f"{seconds[0]:.2f}, {seconds[1]:.2f} |", flush=True)
 
 
 if __name__ == "__main__":
