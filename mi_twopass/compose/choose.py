@@ -197,7 +197,8 @@ def path_pilot(scene, sensor, pixels, settings: PilotSettings, path_integ, seed:
 
 def traits(scene, max_depth) -> cost.SceneTraits:
     """What :func:`cost.structural_reason` reads of ``scene``: emitter count, whether any
-    surface is Lambertian, the depth bound."""
+    surface is Lambertian, the depth bound; and whether any is specular (delta), which
+    :func:`predict_caustics` reads."""
     lambertian = any(s.bsdf() is not None and is_lambertian(s.bsdf())
                      for s in scene.shapes())
     specular = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Delta)
@@ -514,8 +515,11 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     for name, (_, _, run) in runs.items():
         ref = pooled if name != path_row.name else path_reference(
             run.values, [r[2].values for n, r in runs.items() if n != name])
+        # path's: plus the caustic variance its pilot missed, as predicted against its own
+        # means (a pooled reference that already shows some of it counts it twice: an
+        # overestimate of path's variance where rexes were measured anyway)
         measured[name].variance = relative_variance(run.values, ref) + \
-            (unseen if name == path_row.name else 0.0)  # the caustics its pilot missed
+            (unseen if name == path_row.name else 0.0)
     decision.measured = measured
     cost.spend(measured, time.perf_counter() - t_start)
     name = check_bias(scene, sensor, pixels, seed, spp, runs, path_run, path_integ, decision,
