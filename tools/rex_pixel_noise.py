@@ -21,6 +21,7 @@ import mi_twopass  # noqa: F401  (libLLVM, variant, plugins)
 from mi_twopass import units
 from mi_twopass.evaluation.metrics import RELMSE_EPS
 from mi_twopass.prepass import rex_textures as R
+from mi_twopass.prepass.sharp_light import pixel_radiance
 from mi_twopass.scenefile import load_scene, scene_label
 
 
@@ -39,13 +40,8 @@ def pixel_noise(scene, seed: int = 0):
     var = np.where(area_b > 0, s2[cell] * records["photons"]
                    / (area_c * np.maximum(area_b, 1e-300)), 0.0)
     a = hits["beta"] * hits["albedo"] * units.INV_PI
-    width, height = need["film"]
-    model = need.get("model_pixels")
-    model = np.arange(width * height) if model is None else model
-    radiance = np.zeros(width * height)
-    radiance[model] += need["known"]
-    np.add.at(radiance, hits["pixel"], a * s1[cell] / area_c)
-    noise = np.zeros(width * height)
+    model, radiance = pixel_radiance(need, a * s1[cell] / area_c)
+    noise = np.zeros(len(radiance))
     np.add.at(noise, hits["pixel"], a * a * var)
     pixel = float(np.mean(noise[model] / (radiance[model] ** 2 + RELMSE_EPS))) / photons
     return photons, float(stats.get("predicted_relmse", 0.0)), pixel

@@ -81,13 +81,27 @@ def emitter_radiance(scene, power: np.ndarray, radius: float) -> np.ndarray:
     return out
 
 
+def pixel_radiance(need: dict, read: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(model pixels, radiance per film pixel)`` as the size pass predicts the image
+    (channel means): what the eye pass takes from elsewhere (``need["known"]``, on the
+    modelled pixels) plus ``read``, the radiance each of the size pass's hits reads from its
+    rex (a·E), summed into its pixel."""
+    width, height = need["film"]
+    model = need.get("model_pixels")
+    model = np.arange(width * height) if model is None else model
+    radiance = np.zeros(width * height)
+    radiance[model] += need["known"]
+    np.add.at(radiance, need["hits"]["pixel"], read)
+    return model, radiance
+
+
 def path_variance(scene, measure: R.ProbeMeasure) -> tuple[float, float]:
     """``(relative variance, share)`` of :class:`SharpLight` from a size pass and probe
     shoot (:func:`~mi_twopass.prepass.rex_textures.measure_probe`): the module docstring's
     π·a²·Σ_e L_e·E_s,e per pixel over (radiance² + ε), averaged over the modelled pixels."""
     need, tables = measure.need, measure.tables
     records = measure.probe[3]
-    hits, known = need.get("hits", {}), need.get("known")
+    hits = need.get("hits", {})
     if not len(hits.get("rex", ())) or not len(records["rex"]) or "emitter" not in records:
         return 0.0, 0.0
     radiance_of = emitter_radiance(scene, measure.power, float(tables.bounds.radius))
@@ -102,13 +116,8 @@ def path_variance(scene, measure: R.ProbeMeasure) -> tuple[float, float]:
                          minlength=tables.size_cells)
     cell, area = R.hit_cells(tables, hits)
     a = hits["beta"] * hits["albedo"] * units.INV_PI
-    width, height = need["film"]
-    model = need.get("model_pixels")
-    model = np.arange(width * height) if model is None else model
-    radiance = np.zeros(width * height)
-    radiance[model] += known
-    np.add.at(radiance, hits["pixel"], a * flux[cell] / area)
-    var = np.zeros(width * height)
+    model, radiance = pixel_radiance(need, a * flux[cell] / area)
+    var = np.zeros(len(radiance))
     np.add.at(var, hits["pixel"], math.pi * a * a * flux_l[cell] / area)
     relvar = float(np.mean(var[model] / (radiance[model] ** 2 + RELMSE_EPS)))
     share = float(np.sum(a * flux_sharp[cell] / area) / max(radiance[model].sum(), 1e-30))
@@ -127,4 +136,4 @@ def measure(scene, settings, seed: int = 0, sensor=None) -> SharpLight:
     return SharpLight(relvar, share, int(photons))
 
 
-__all__ = ["SharpLight", "emitter_radiance", "measure", "path_variance"]
+__all__ = ["SharpLight", "emitter_radiance", "measure", "path_variance", "pixel_radiance"]
