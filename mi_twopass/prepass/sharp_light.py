@@ -129,9 +129,8 @@ def measure(scene, settings, seed: int = 0, sensor=None) -> SharpLight:
     (:func:`~mi_twopass.prepass.rex_textures.measure_probe`), read twice: the photons the
     image needs and path's predicted variance on sharp light."""
     m = R.measure_probe(scene, settings, seed, sensor)
-    photons = R.photon_need(m.need, settings, m.power, *m.probe, tables=m.tables)[0]
-    if settings.photons > 0:
-        photons = int(settings.photons)
+    photons = settings.photons if settings.photons > 0 else \
+        R.photon_need(m.need, settings, m.power, *m.probe, tables=m.tables)[0]
     relvar, share = path_variance(scene, m)
     return SharpLight(relvar, share, int(photons))
 
