@@ -796,6 +796,64 @@ def _build_grid_group(kind, nu, nv, gs) -> dict:
             for i, g in enumerate(gs)}
 
 
+def _mesh_point_tables(parts):
+    """Dr.Jit tables the mesh parts' sample points are computed from (:func:`_sample_points`),
+    concatenated over the parts: each sub-triangle's corners in its face's barycentrics
+    (``bary``, 6 floats), its face in its shape (``prim``, Mitsuba's ``prim_index``) and in
+    the concatenation (``face``, an index into ``F``, whose vertex ids index ``V``, and into
+    ``normal``, the face's unit normal from ``_extract_shapes``); with each mesh part's first
+    sub-triangle (``tri_base``, by ``id(part)``). ``None`` without meshes."""
+    bary, prim, face, F, V, normal, tri_base = [], [], [], [], [], [], {}
+    n_tri = n_face = n_vert = 0
+    for part in parts:
+        if part["kind"] != KIND_MESH:
+            continue
+        g = part["geom"]
+        tri_base[id(part)] = n_tri
+        bary.append(part["tri_bary"].reshape(-1, 6))
+        prim.append(part["tri_face"])
+        face.append(part["tri_face"] + n_face)
+        F.append(g.F + n_vert)
+        V.append(g.V)
+        normal.append(g.face_normal)
+        n_tri += part["tri_face"].size
+        n_face += g.F.shape[0]
+        n_vert += g.V.shape[0]
+    if not n_tri:
+        return None
+    return dict(
+        bary=jit(mi.Float, np.concatenate(bary).astype(np.float32).ravel()),
+        prim=jit(mi.UInt32, np.concatenate(prim).astype(np.uint32)),
+        face=jit(mi.UInt32, np.concatenate(face).astype(np.uint32)),
+        F=jit(mi.UInt32, np.concatenate(F).astype(np.uint32).ravel()),
+        V=vectors(np.concatenate(V), mi.Point3f),
+        normal=vectors(np.concatenate(normal), mi.Vector3f),
+        tri_base=tri_base)
+
+
+def _mesh_points(tables, tri, r1, r2):
+    """Uniform points on the sub-triangles ``tri`` (UInt32 into ``tables``, from random numbers
+    ``r1``, ``r2``): ``(P, N, prim, u, v)`` — the point, its face's unit normal (flip included;
+    +z, flipped, where the face has no area: ``_extract_shapes``'s, computed in float64, where
+    float32 would turn some degenerate faces' normals sideways), the face's index in its
+    shape and the point's barycentrics (u, v) on it: Mitsuba's ``prim_index`` and ``prim_uv``. In Dr.Jit, fused into the probes'
+    kernels: in numpy the float64 temporaries of the corner and vertex gathers cost 0.04 s per
+    262,144 points (the receiving elements of scenes_xml/cornell_box.xml, a fifth of its
+    radiosity prepass)."""
+    sq = dr.sqrt(r1)
+    w1, w2 = 1.0 - sq, sq * r2  # uniform barycentrics on the sub-triangle
+    w0 = 1.0 - w1 - w2
+    c = [dr.gather(mi.Float, tables["bary"], tri * 6 + j) for j in range(6)]
+    u = w0 * c[0] + w1 * c[2] + w2 * c[4]
+    v = w0 * c[1] + w1 * c[3] + w2 * c[5]
+    face = dr.gather(mi.UInt32, tables["face"], tri)
+    p0, p1, p2 = (dr.gather(mi.Point3f, tables["V"], dr.gather(mi.UInt32, tables["F"], face * 3 + j))
+                  for j in range(3))
+    P = p0 * (1.0 - u - v) + p1 * u + p2 * v
+    N = dr.gather(mi.Vector3f, tables["normal"], face)
+    return P, N, dr.gather(mi.UInt32, tables["prim"], tri), u, v
+
+
 def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     """Albedo, emitted radiance and exposure of each patch: ``(albedo, is_diffuse, Le,
     exposure, probe_rays)``.
@@ -817,10 +875,14 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     rng = numpy_rng(seed, _SALT_PROBE)
     pos_in_dr = {int(r): i for i, r in
                  enumerate(np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())))}
-    P, Nrm, prim, bary, dr_index, patch_of, wi_z = [], [], [], [], [], [], []
+    tables = _mesh_point_tables(parts)
+    # per point: a mesh's sub-triangle and two random numbers (the point itself is made in
+    # Dr.Jit, :func:`_mesh_points`), or an analytic shape's point and normal (numpy)
+    is_mesh, tri_of, R1, R2, P, Nrm, dr_index, patch_of, wi_z = ([] for _ in range(9))
     for part in parts:
         g, K, b0 = part["geom"], part["K"], part["base"]
-        if part["kind"] == KIND_MESH:
+        mesh = part["kind"] == KIND_MESH
+        if mesh:
             # a triangle of the patch by area, then a uniform point on it
             tri_area = 0.5 * np.linalg.norm(np.cross(part["tri_v"][:, 1] - part["tri_v"][:, 0],
                                                      part["tri_v"][:, 2] - part["tri_v"][:, 0]),
@@ -838,47 +900,53 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
             pick = np.clip(pick, first[:, None], last[:, None])
             # zero-area patches: the first triangle
             pick = np.where(span[:, None] > 0, pick, first[:, None]).reshape(-1)
-            tri = order[pick]
-            r1, r2 = rng.random(tri.size), rng.random(tri.size)
-            sq = np.sqrt(r1)
-            w1, w2 = 1 - sq, sq * r2  # uniform barycentrics
-            w0 = 1 - w1 - w2
-            cb = part["tri_bary"][tri]  # corners in face barycentrics
-            fb = w0[:, None] * cb[:, 0] + w1[:, None] * cb[:, 1] + w2[:, None] * cb[:, 2]
-            face = part["tri_face"][tri]
-            F = g.F[face]
-            pts = (g.V[F[:, 0]] * (1 - fb[:, 0:1] - fb[:, 1:2]) + g.V[F[:, 1]] * fb[:, 0:1]
-                   + g.V[F[:, 2]] * fb[:, 1:2])
-            nrm = g.face_normal[face]
-            prim.append(face)
-            bary.append(fb)
+            tri = (order[pick] + tables["tri_base"][id(part)]).astype(np.uint32)
+            r1 = rng.random(tri.size).astype(np.float32)
+            r2 = rng.random(tri.size).astype(np.float32)
+            pts = nrm = None
         else:
             nu, nv = part["nu"], part["nv"]
             i_t, i_s = np.divmod(np.arange(K), nu)
             s = (i_s[:, None] + rng.random((K, k))) / nu
             t = (i_t[:, None] + rng.random((K, k))) / nv
             pts, nrm = _param_world(g, s.reshape(-1), t.reshape(-1))
-            prim.append(np.zeros(K * k, np.int64))
-            bary.append(np.zeros((K * k, 2)))
+            tri = np.zeros(K * k, np.uint32)
+            r1 = r2 = np.zeros(K * k, np.float32)
         local = np.repeat(np.arange(K), k)
         for sd in range(_sides(g)):
-            P.append(pts)
-            Nrm.append(nrm)
+            is_mesh.append(np.full(K * k, mesh))
+            tri_of.append(tri)
+            R1.append(r1)
+            R2.append(r2)
+            P.append(np.zeros((K * k, 3), np.float32) if mesh else pts)
+            Nrm.append(np.zeros((K * k, 3), np.float32) if mesh else nrm)
             dr_index.append(np.full(K * k, pos_in_dr[g.reg_id], np.int64))
             patch_of.append(b0 + sd * K + local)
             wi_z.append(np.full(K * k, -1.0 if sd else 1.0))
-            if sd:
-                prim.append(prim[-1])
-                bary.append(bary[-1])
-    P, Nrm = np.concatenate(P), np.concatenate(Nrm)
-    prim, bary = np.concatenate(prim), np.concatenate(bary)
+    is_mesh, tri_of, R1, R2 = map(np.concatenate, (is_mesh, tri_of, R1, R2))
     dr_index, patch_of, wi_z = map(np.concatenate, (dr_index, patch_of, wi_z))
+    n = is_mesh.size
 
-    n = P.shape[0]
-    # the probes' geometry runs in Dr.Jit, fused into the ray kernels: in numpy, the float64
-    # temporaries of a few 100k points (offsets, tangents, segments) cost 3–4 times the rays
-    # (scenes_xml/caustic.xml: 0.10 of the receiving elements' 0.14 s)
-    Pd, Nd = vectors(P, mi.Point3f), vectors(Nrm, mi.Vector3f)
+    # the points' and probes' geometry runs in Dr.Jit, fused into the ray kernels: in numpy,
+    # the float64 temporaries of a few 100k points (offsets, tangents, segments) cost 3–4 times
+    # the rays (scenes_xml/caustic.xml: 0.10 of the receiving elements' 0.14 s)
+    prim, bary_u, bary_v = mi.UInt32(0), mi.Float(0.0), mi.Float(0.0)
+    if is_mesh.all():
+        Pd, Nd, prim, bary_u, bary_v = _mesh_points(
+            tables, jit(mi.UInt32, tri_of), jit(mi.Float, R1), jit(mi.Float, R2))
+    else:
+        Pd = vectors(np.concatenate(P), mi.Point3f)
+        Nd = vectors(np.concatenate(Nrm), mi.Vector3f)
+        if tables is not None:
+            Pm, Nm, face, um, vm = _mesh_points(
+                tables, jit(mi.UInt32, tri_of), jit(mi.Float, R1), jit(mi.Float, R2))
+            mesh = jit(mi.Bool, is_mesh)
+            Pd, Nd = dr.select(mesh, Pm, Pd), dr.select(mesh, Nm, Nd)
+            prim = dr.select(mesh, face, 0)
+            bary_u, bary_v = dr.select(mesh, um, 0.0), dr.select(mesh, vm, 0.0)
+    prim, bary_u, bary_v = prim + dr.zeros(mi.UInt32, n), bary_u + dr.zeros(mi.Float, n), \
+        bary_v + dr.zeros(mi.Float, n)
+    dr.eval(Pd, Nd, prim, bary_u, bary_v)
     extent = [float(dr.max(Pd[i])[0] - dr.min(Pd[i])[0]) for i in range(3)]
     # opaque: it follows the random points, and as a literal in the probes' kernels it
     # compiled them anew for every seed (6 kernels a radiosity prepass)
@@ -886,9 +954,8 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     ray = mi.Ray3f(Pd + Nd * delta, -Nd)
     pi = dr.zeros(mi.PreliminaryIntersection3f, n)
     pi.t = delta + dr.zeros(mi.Float, n)
-    pi.prim_uv = mi.Point2f(jit(mi.Float, bary[:, 0].astype(np.float32)),
-                            jit(mi.Float, bary[:, 1].astype(np.float32)))
-    pi.prim_index = jit(mi.UInt32, prim.astype(np.uint32))
+    pi.prim_uv = mi.Point2f(bary_u, bary_v)
+    pi.prim_index = prim
     pi.shape = dr.gather(mi.ShapePtr, scene.shapes_dr(), jit(mi.UInt32, dr_index.astype(np.uint32)))
     si = pi.shape.compute_surface_interaction(ray, pi, mi.RayFlags.All, mi.Bool(True))
     wz = jit(mi.Float, wi_z.astype(np.float32))
@@ -925,6 +992,10 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
 #: lift of the split probe's segment above the patch, as a fraction of the segment's length
 #: (clears the sag of a chord over a gently curved patch; a wall that cuts the patch is taller)
 SPLIT_LIFT = 0.25
+#: fraction of the split probe's segment left out at each end: points 4e-6 apart (float32
+#: rounding) found 205 or 226 of staircase2's 1024 patches split, by hits at the segment's very
+#: end and on segments of zero length (two samples on one degenerate triangle)
+SPLIT_END = 1e-3
 
 
 def _probe_split(scene, P, side_normal, patch_of, enclosed, delta, N):
@@ -953,9 +1024,12 @@ def _probe_split(scene, P, side_normal, patch_of, enclosed, delta, N):
     b = b + dr.gather(mi.Vector3f, side_normal, jb) * lift
     d = b - a
     dist = dr.norm(d)
-    ok = dist > 0
-    ray = mi.Ray3f(a, d / dr.select(ok, dist, 1.0))
-    ray.maxt = dr.select(ok, dist, 0.0)
+    # a segment no longer than the lift crosses no wall; the ends are left out (SPLIT_END),
+    # where a surface the lifted point touches (a stair's riser) decided by rounding alone
+    ok = dist > delta
+    direction = d / dr.select(ok, dist, 1.0)
+    ray = mi.Ray3f(a + direction * (SPLIT_END * dist), direction)
+    ray.maxt = dr.select(ok, (1.0 - 2.0 * SPLIT_END) * dist, 0.0)
     blocked = np.array(scene.ray_test(ray, ok) & ok, dtype=bool).reshape(-1)
     split[patch_of[j][blocked]] = True
     return split, int(j.size)

@@ -274,6 +274,36 @@ def test_zero_area_triangles_no_nan():
     assert np.all(np.array(pdf)[zero] == 0)
 
 
+def test_property_points_read_each_meshs_own_faces():
+    """The property points of every mesh read the albedo of the face they lie on: a per-face
+    albedo (``mesh_attribute``) on the second of two meshes, one of them flipped. The points
+    are made in Dr.Jit from tables over all meshes; the face they hand Mitsuba must be the
+    face's index in its own mesh (the concatenation's index read past the second mesh's faces
+    and crashed on ../shared/scenes/staircase2)."""
+    V1, F1 = grid_mesh(2, z=0.0)
+    first = make_mesh("first", V1, F1, bsdf={"type": "diffuse"}, flip=True)
+    quads = 6
+    x = np.linspace(0.0, 6.0, quads + 1)
+    V2 = np.array([[xi, y, 1.0] for xi in x for y in (0.0, 1.0)])
+    F2 = np.concatenate([[[2 * i, 2 * i + 2, 2 * i + 3], [2 * i, 2 * i + 3, 2 * i + 1]]
+                         for i in range(quads)])
+    second = make_mesh("second", V2, F2,
+                       bsdf={"type": "diffuse",
+                             "reflectance": {"type": "mesh_attribute", "name": "face_albedo"}})
+    shade = np.repeat(0.1 + 0.1 * np.arange(quads), 2)  # both triangles of quad i: 0.1 (i + 1)
+    second.add_attribute("face_albedo", 3, np.repeat(shade, 3).astype(np.float32))
+    scene = mi.load_dict({"type": "scene", "first": first, "second": second})
+    patches = build_patches(scene, max_patches=4 * quads)
+    of_second = patches.shape_index == [s.id() for s in scene.shapes()].index("second")
+    assert of_second.sum() >= quads
+    expected = 0.1 + 0.1 * np.floor(patches.center[of_second, 0])  # the quad under the centre
+    np.testing.assert_allclose(patches.albedo[of_second], np.repeat(expected[:, None], 3, 1),
+                               rtol=1e-5)
+    assert_rows(patches.albedo[~of_second], [0.5, 0.5, 0.5])  # the flipped mesh: its own BSDF
+    np.testing.assert_allclose(patches.normal[~of_second], np.broadcast_to(
+        [0.0, 0.0, -1.0], patches.normal[~of_second].shape), atol=1e-6)
+
+
 # ---------------------------------------------------------------------------------------------
 # lookup
 
