@@ -5,6 +5,8 @@ Arikan, Forsyth & O'Brien 2005, "Radiance Caching and Local Geometry Correction"
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import drjit as dr
 import mitsuba as mi
 
@@ -16,6 +18,7 @@ from ..prepass.spike_grid import SpikeSettings
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
                    read_radiosity_budget)
 from .light_samplers import SpikeListSampler
+from .spike_gather import SpikeGatherIntegrator
 from .pathtrace import (MAX_DELTA_DEPTH, bsdf_step, by_component, first_nondelta_hit,
                         next_hit, path_start)
 
@@ -201,11 +204,21 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
      * - max_patches
        - |int|
        - Patch budget of the radiosity prepass; the cached patches' triangles are the
-         near-field triangles, with the elements' where a patch is cut (default: 2048).
+         near-field triangles, with the elements' where a patch is cut (default: 2048; 4096
+         where the spike lists are built, see below).
      * - particles_per_patch
        - |int|
-       - Particles the radiosity solver shoots per patch (default: 256). At least
-         65536 in all (``prepass.radiosity.MIN_PARTICLES``), however few the patches.
+       - Particles the radiosity solver shoots per patch (default: 256; 64 where the spike
+         lists are built). At least 65536 in all (``prepass.radiosity.MIN_PARTICLES``),
+         however few the patches. Where ``direct="spike"`` builds spike lists (more than one
+         emitter) and neither budget is set, the solve is spike_gather's (4096 patches × 64
+         particles, the same 262,144 particles as 1024 × 256, half the 2048 × 256 of the
+         single-emitter default), as twopass's row of spike lists with the cache has had since
+         session 26. At 256², 2048-spp references, 25 s budgets, from 2048 × 256 to that:
+         time to relMSE 0.01 window_interior 4.79× → 5.52× ``path``, office 3.76× → 5.62×;
+         equal-time ratio mixed_room 6.51 → 7.74, many_lights 3.07 → 4.67; ``check`` at
+         128², 64 spp, 16384-spp references, two renders: every bias part within one standard
+         error of the old one (docs/results/prepass-points-2026-11-29).
      * - elements_per_patch
        - |int|
        - Receiving elements per radiosity patch (as in ``radiosity_gather``); the SH gather
@@ -321,6 +334,8 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
         self.ambient = read_float(props, "ambient", 0.1, minimum=0.0)
         self.radiosity = read_radiosity_budget(props, max_patches=2048, particles_per_patch=256,
                                                elements_per_patch=4)
+        #: the XML sets the solve's budget: no other budget where spike lists are built
+        self.budget_given = "max_patches" in props or "particles_per_patch" in props
         self.max_points = read_int(props, "max_points", 4096, minimum=1)
         self.max_clusters = read_int(props, "max_clusters", 1024, minimum=1)
         self.parallax = read_float(props, "parallax", 0.0, minimum=0.0)
@@ -342,11 +357,27 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
                 self.max_near_triangles, self.near_cell_rel, self.near_merge_rel, self.direct,
                 self.bright_contrast, self.pixel_table, self.near_weight, self.near_far)
 
-    @property
-    def cache_settings(self) -> CacheSettings:
-        """Everything the prepass reads, from the XML properties (checked at load)."""
+    def builds_spike_lists(self, scene) -> bool:
+        """``direct="spike"`` on a scene of more than one emitter (with one, a spike list is
+        emitter sampling: none is built, :func:`~mi_twopass.prepass.sh_cache.build`)."""
+        return self.direct == "spike" and len(scene.emitters()) > 1
+
+    def radiosity_settings(self, scene):
+        """The radiosity solve's budget for ``scene``: the XML's (or the defaults), except
+        where spike lists are built and the XML sets no budget: spike_gather's patches and
+        particles (``SpikeGatherIntegrator.RADIOSITY_DEFAULTS``, the manual's
+        ``particles_per_patch``), so that a scene of many lights pays half the particles."""
+        if self.budget_given or not self.builds_spike_lists(scene):
+            return self.radiosity
+        patches, particles, _ = SpikeGatherIntegrator.RADIOSITY_DEFAULTS
+        return replace(self.radiosity, max_patches=patches, particles_per_patch=particles)
+
+    def cache_settings(self, scene) -> CacheSettings:
+        """Everything the prepass of ``scene`` reads, from the XML properties (checked at
+        load) and, for the solve's budget, the scene's emitters (:meth:`radiosity_settings`)."""
         return CacheSettings(alpha_rel=self.alpha_rel, alpha=self.alpha_abs,
-                             fake_gi=self.fake_gi, ambient=self.ambient, radiosity=self.radiosity,
+                             fake_gi=self.fake_gi, ambient=self.ambient,
+                             radiosity=self.radiosity_settings(scene),
                              max_points=self.max_points, max_clusters=self.max_clusters,
                              parallax=self.parallax,
                              rays_per_cluster=self.rays_per_cluster,
@@ -372,7 +403,7 @@ class RadianceCacheIntegrator(TwoPassIntegrator):
     def prepass(self, scene, seed):
         """Shading points, coarse solution, SH far field, near field
         (:func:`mi_twopass.prepass.sh_cache.build`)."""
-        s = build_cache(scene, self.cache_settings, seed, sensor=self.prepass_sensor,
+        s = build_cache(scene, self.cache_settings(scene), seed, sensor=self.prepass_sensor,
                         memo=self.radiosity_memo)
         sensor = self.prepass_sensor
         if self.pixel_table and self.debug == "none" and s.cache is not None \

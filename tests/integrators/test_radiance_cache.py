@@ -48,10 +48,10 @@ def light(y=0.99, scale=0.3, radiance=15.0):
             .scale(scale), "emitter": {"type": "area", "radiance": rgb(radiance)}}
 
 
-def corner_room(res=24, dark=0.05, white=0.7, right=None):
+def corner_room(res=24, dark=0.05, white=0.7, right=None, **extra):
     """A closed room [-1, 1]³ of white walls, a dark right wall (x = 1; ``right``: another shape
     in its place) and a ceiling light; the camera looks down at the floor next to the dark
-    wall."""
+    wall. ``extra``: more shapes, by name."""
     return mi.load_dict({
         "type": "scene",
         "floor": wall(T().translate([0, -1, 0]).rotate([1, 0, 0], -90), white),
@@ -62,7 +62,7 @@ def corner_room(res=24, dark=0.05, white=0.7, right=None):
                                                       .rotate([0, 1, 0], -90), dark),
         "front": wall(T().translate([0, 0, 1]).rotate([0, 1, 0], 180), white),
         "light": light(),
-        "sensor": camera([0, 0.2, 0.95], [0.3, -1, -0.5], res)})
+        "sensor": camera([0, 0.2, 0.95], [0.3, -1, -0.5], res), **extra})
 
 
 def open_plane(res=16):
@@ -626,3 +626,29 @@ def test_a_window_reveal_reads_the_light_path_finds():
         img, integ = render(scene, spp=64, seed=s, max_points=32)
         ratio = img[..., :3].mean(-1)[reveal].mean() / path
         assert abs(ratio - 1.0) < 0.1, (s, ratio)
+
+
+def test_the_solve_is_spike_gathers_where_spike_lists_are_built():
+    """Spike lists (``direct="spike"``, more than one emitter) and no budget in the XML: the
+    radiosity solve is spike_gather's, 4096 patches × 64 particles; one emitter,
+    ``direct="emitter"`` or a budget the XML sets keep the cache's own (2048 × 256 by default).
+    The prepass really runs with it (its patch count)."""
+    from mi_twopass.integrators.spike_gather import SpikeGatherIntegrator
+
+    one = corner_room()
+    two = corner_room(second=light(y=0.5, scale=0.1))
+    assert len(one.emitters()) == 1 and len(two.emitters()) == 2
+
+    def budget(scene, **props):
+        r = mi.load_dict({"type": "radiance_cache", **props}).radiosity_settings(scene)
+        return r.max_patches, r.particles_per_patch
+
+    spike = SpikeGatherIntegrator.RADIOSITY_DEFAULTS[:2]
+    assert budget(two) == spike == (4096, 64)
+    assert budget(one) == (2048, 256)
+    assert budget(two, direct="emitter") == (2048, 256)
+    assert budget(two, max_patches=512) == (512, 256)
+    assert budget(two, particles_per_patch=32) == (2048, 32)
+    integ = mi.load_dict({"type": "radiance_cache"})
+    mi.render(two, integrator=integ, spp=1)
+    assert 2048 < integ.stats["patches"] <= 4096
