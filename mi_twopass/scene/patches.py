@@ -797,7 +797,7 @@ def _build_grid_group(kind, nu, nv, gs) -> dict:
 
 
 def _mesh_point_tables(parts):
-    """Dr.Jit tables the mesh parts' sample points are computed from (:func:`_sample_points`),
+    """Dr.Jit tables the mesh parts' property points are made from (:func:`_mesh_points`),
     concatenated over the parts: each sub-triangle's corners in its face's barycentrics
     (``bary``, 6 floats), its face in its shape (``prim``, Mitsuba's ``prim_index``) and in
     the concatenation (``face``, an index into ``F``, whose vertex ids index ``V``, and into
@@ -836,10 +836,10 @@ def _mesh_points(tables, tri, r1, r2):
     ``r1``, ``r2``): ``(P, N, prim, u, v)`` — the point, its face's unit normal (flip included;
     +z, flipped, where the face has no area: ``_extract_shapes``'s, computed in float64, where
     float32 would turn some degenerate faces' normals sideways), the face's index in its
-    shape and the point's barycentrics (u, v) on it: Mitsuba's ``prim_index`` and ``prim_uv``. In Dr.Jit, fused into the probes'
-    kernels: in numpy the float64 temporaries of the corner and vertex gathers cost 0.04 s per
-    262,144 points (the receiving elements of scenes_xml/cornell_box.xml, a fifth of its
-    radiosity prepass)."""
+    shape and the point's barycentrics (u, v) on it: Mitsuba's ``prim_index`` and
+    ``prim_uv``. In Dr.Jit, fused into the probes' kernels: in numpy the float64 temporaries
+    of the corner and vertex gathers cost 0.04 s per 262,144 points (the receiving elements
+    of scenes_xml/cornell_box.xml, a fifth of its radiosity prepass)."""
     sq = dr.sqrt(r1)
     w1, w2 = 1.0 - sq, sq * r2  # uniform barycentrics on the sub-triangle
     w0 = 1.0 - w1 - w2
@@ -847,8 +847,8 @@ def _mesh_points(tables, tri, r1, r2):
     u = w0 * c[0] + w1 * c[2] + w2 * c[4]
     v = w0 * c[1] + w1 * c[3] + w2 * c[5]
     face = dr.gather(mi.UInt32, tables["face"], tri)
-    p0, p1, p2 = (dr.gather(mi.Point3f, tables["V"], dr.gather(mi.UInt32, tables["F"], face * 3 + j))
-                  for j in range(3))
+    p0, p1, p2 = (dr.gather(mi.Point3f, tables["V"],
+                            dr.gather(mi.UInt32, tables["F"], face * 3 + j)) for j in range(3))
     P = p0 * (1.0 - u - v) + p1 * u + p2 * v
     N = dr.gather(mi.Vector3f, tables["normal"], face)
     return P, N, dr.gather(mi.UInt32, tables["prim"], tri), u, v
