@@ -918,8 +918,8 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
             tri_of.append(tri)
             R1.append(r1)
             R2.append(r2)
-            P.append(np.zeros((K * k, 3), np.float32) if mesh else pts)
-            Nrm.append(np.zeros((K * k, 3), np.float32) if mesh else nrm)
+            P.append(K * k if mesh else pts)  # a mesh's count: zero rows, made where needed
+            Nrm.append(K * k if mesh else nrm)
             dr_index.append(np.full(K * k, pos_in_dr[g.reg_id], np.int64))
             patch_of.append(b0 + sd * K + local)
             wi_z.append(np.full(K * k, -1.0 if sd else 1.0))
@@ -930,22 +930,25 @@ def _evaluate_properties(scene, parts, N, seed, k=SAMPLES_PER_PATCH):
     # the points' and probes' geometry runs in Dr.Jit, fused into the ray kernels: in numpy,
     # the float64 temporaries of a few 100k points (offsets, tangents, segments) cost 3–4 times
     # the rays (scenes_xml/caustic.xml: 0.10 of the receiving elements' 0.14 s)
-    prim, bary_u, bary_v = mi.UInt32(0), mi.Float(0.0), mi.Float(0.0)
-    if is_mesh.all():
-        Pd, Nd, prim, bary_u, bary_v = _mesh_points(
+    def rows(arrays):  # the analytic shapes' rows, zeros where a mesh's points go
+        return np.concatenate([np.zeros((a, 3), np.float32) if isinstance(a, int) else a
+                               for a in arrays])
+
+    if tables is not None:
+        Pm, Nm, prim, bary_u, bary_v = _mesh_points(
             tables, jit(mi.UInt32, tri_of), jit(mi.Float, R1), jit(mi.Float, R2))
+    if is_mesh.all():
+        Pd, Nd = Pm, Nm
     else:
-        Pd = vectors(np.concatenate(P), mi.Point3f)
-        Nd = vectors(np.concatenate(Nrm), mi.Vector3f)
-        if tables is not None:
-            Pm, Nm, face, um, vm = _mesh_points(
-                tables, jit(mi.UInt32, tri_of), jit(mi.Float, R1), jit(mi.Float, R2))
+        Pd, Nd = vectors(rows(P), mi.Point3f), vectors(rows(Nrm), mi.Vector3f)
+        if tables is None:
+            prim, bary_u, bary_v = (dr.zeros(mi.UInt32, n), dr.zeros(mi.Float, n),
+                                    dr.zeros(mi.Float, n))
+        else:
             mesh = jit(mi.Bool, is_mesh)
             Pd, Nd = dr.select(mesh, Pm, Pd), dr.select(mesh, Nm, Nd)
-            prim = dr.select(mesh, face, 0)
-            bary_u, bary_v = dr.select(mesh, um, 0.0), dr.select(mesh, vm, 0.0)
-    prim, bary_u, bary_v = prim + dr.zeros(mi.UInt32, n), bary_u + dr.zeros(mi.Float, n), \
-        bary_v + dr.zeros(mi.Float, n)
+            prim = dr.select(mesh, prim, 0)
+            bary_u, bary_v = dr.select(mesh, bary_u, 0.0), dr.select(mesh, bary_v, 0.0)
     dr.eval(Pd, Nd, prim, bary_u, bary_v)
     extent = [float(dr.max(Pd[i])[0] - dr.min(Pd[i])[0]) for i in range(3)]
     # opaque: it follows the random points, and as a literal in the probes' kernels it
