@@ -10,6 +10,7 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.compose import cost
+from mi_twopass.evaluation.metrics import BLOCK_RELMSE_MAX
 from mi_twopass.compose.choose import (candidate_estimator, check_bias, choose,
                                        path_sum_estimator, predict_caustics, traits)
 from mi_twopass.compose.pilot import PilotSettings, choose_pixels, pilot
@@ -121,7 +122,9 @@ def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypa
     """A rex candidate cut below the image's need is built again with another seed; the noise
     the two builds do not share is recorded. Below the limit the cut build is kept; above it,
     the candidate is built with the photons that bring it there (here the need: the noise is
-    read far above the limit), or left out, with the reason, where its budget has no room."""
+    read far above the limit); where its budget has no room for them, it is kept while the
+    noise is within check's bound (counted in its score) and left out, with the reason, beyond
+    it."""
     from mi_twopass.compose.choose import fit_frozen
 
     scene, sensor, tp, rex_row, path_m = rex_case()
@@ -146,6 +149,14 @@ def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypa
                         lambda a, b, n: cost.Frozen(1.0, measure(a, b, n).block_se, 1.0))
     decision, integ, (kept, why, _) = fit(room=0.0)
     assert kept is None and f"its rexes' own noise at {cut} photons" in why
+    between = 0.5 * (cost.frozen_limit() + BLOCK_RELMSE_MAX)  # over the limit, in the bound
+    monkeypatch.setattr(cost, "frozen_error",
+                        lambda a, b, n: cost.Frozen(between, measure(a, b, n).block_se, between))
+    decision, integ, (kept, frozen, _) = fit(room=0.0)
+    assert kept is integ and frozen.block == between
+    assert decision.fitted[rex_row.name] == (cut, need)
+    monkeypatch.setattr(cost, "frozen_error",
+                        lambda a, b, n: cost.Frozen(1.0, measure(a, b, n).block_se, 1.0))
     decision, integ, (kept, predicted, _) = fit(room=1e9)
     assert kept is not integ and kept.photons == need
     assert decision.fitted[rex_row.name] == (need, need)
