@@ -127,7 +127,7 @@ def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: fl
     the noise counted in its score. Until session 33 it was dropped there, and path
     rendered: on caustic.xml at 256², render seed 1, twopass rendered path at 64 and 128 spp,
     relMSE 0.49 and 0.28 against a 16384-spp reference, where the rexes it had built (noise
-    read at 1.8-2.0e-3, the limit 1.5e-3) reach 0.026 and 0.014
+    read at 1.7-2.0e-3, the limit 1.5e-3) reach 0.026 and 0.014
     (docs/results/revalidate-2026-11-29-s33).
 
     Returns (integrator, Frozen as predicted for it, seconds the twin and any rebuild took),

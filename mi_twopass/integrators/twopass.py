@@ -75,7 +75,10 @@ class TwoPassChooser(TwoPassIntegrator):
            field); else build its prepass and pilot it on the same pixels (rexes cut below
            the image's photon need are built twice, the second time with up to 4× the
            photons the rest of their budget pays for, and that build renders; the pair
-           measures the photons' own noise: :func:`mi_twopass.compose.choose.fit_frozen`)
+           measures the photons' own noise, counted in the score; above half of check's
+           bound they are built again with the photons that bring it there where the
+           budget pays for them, else kept within the bound and dropped beyond it:
+           :func:`mi_twopass.compose.choose.fit_frozen`)
         3. take the candidate of least predicted relMSE × seconds, (S + N·t) × (v/N + b²),
            N the render's samples per pixel, S the seconds the pilot and the prepasses have
            taken (spent whichever renders), b² its squared relative bias against the path
