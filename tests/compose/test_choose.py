@@ -10,10 +10,10 @@ import pytest
 
 import mi_twopass  # noqa: F401
 from mi_twopass.compose import cost
-from mi_twopass.evaluation.metrics import BLOCK_RELMSE_MAX
 from mi_twopass.compose.choose import (candidate_estimator, check_bias, choose,
                                        path_sum_estimator, predict_caustics, traits)
 from mi_twopass.compose.pilot import PilotSettings, choose_pixels, pilot
+from mi_twopass.evaluation.metrics import BLOCK_RELMSE_MAX
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import hard_scenes as hs  # noqa: E402
