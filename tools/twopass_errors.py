@@ -21,13 +21,7 @@ from mi_twopass.evaluation.bench import scene_settings
 from mi_twopass.evaluation.metrics import relmse
 from mi_twopass.evaluation.reference import reference_image
 from mi_twopass.scenefile import load_scene
-
-
-def short(choice: str) -> str:
-    """``direct=emitter,indirect=rex,caustics=rex`` → ``emitter + rex (caustics rex)``."""
-    parts = dict(p.split("=") for p in choice.split(","))
-    label = f"{parts['direct']} + {parts['indirect']}"
-    return label if parts["caustics"] == "off" else label + f" (caustics {parts['caustics']})"
+from twopass_decisions import short  # (tools/, the script's folder)
 
 
 def main():
