@@ -18,9 +18,9 @@ from ..prepass.spike_grid import SpikeSettings
 from .base import (TwoPassIntegrator, read_bool, read_choice, read_float, read_int,
                    read_radiosity_budget)
 from .light_samplers import SpikeListSampler
-from .spike_gather import SpikeGatherIntegrator
 from .pathtrace import (MAX_DELTA_DEPTH, bsdf_step, by_component, first_nondelta_hit,
                         next_hit, path_start)
+from .spike_gather import SpikeGatherIntegrator
 
 DEBUG_MODES = ("none", "B_D", "B_C", "samples")
 DIRECT_MODES = ("emitter", "spike")
