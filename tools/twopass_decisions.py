@@ -7,7 +7,8 @@ One render per (scene, spp, render seed) with a fresh ``twopass``, timed to the 
 Markdown row each: the choice, the render's seconds, the pilot's and prepasses' seconds
 (``prepass_seconds``) and the candidates built. ``--why`` adds, under each row, every
 candidate's best case; its measured score, variance and image mean over path's pilot; the
-reason each skipped one was not built; and the bias tests of a suspect winner
+reason each skipped one was not built; the photons of a cut rex against the image's need, with
+its own noise as measured or predicted per build (``twopass_fitted``, ``twopass_frozen``); and the bias tests of a suspect winner
 (``twopass_best_case``, ``twopass_candidates``, ``twopass_skipped``,
 ``twopass_bias_checks``), and path's caustic variance as rex's photons predicted it beside
 the pilot's (``twopass_caustic_prediction``). Run two checkouts alternately (``PYTHONPATH``)
@@ -69,6 +70,11 @@ def main():
                            f"image mean over path's {m['mean_ratio']:.3f}"
                            if m else s["twopass_skipped"].get(n, "not built"))
                     print(f"    {short(n)}: best case {best:.3g}; {got}")
+                for n, f in s.get("twopass_fitted", {}).items():
+                    history = "; ".join(f"{h['light_paths']}: block {h['block_relmse']:.3g}"
+                                        for h in s.get("twopass_frozen", {}).get(n, []))
+                    print(f"    {short(n)} cut to {f['light_paths']} of the image's "
+                          f"{f['image_needs']} photons; own noise {history or 'not measured'}")
                 for n, checks in s["twopass_bias_checks"].items():
                     for c in checks:
                         b2 = "—" if c["bias2"] is None else f"{c['bias2']:.3g}"

@@ -6,6 +6,7 @@ and is the whole of ``twopass``'s prepass (:mod:`mi_twopass.integrators.twopass`
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import warnings
@@ -117,24 +118,30 @@ def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: fl
     (:func:`cost.frozen_error`).
 
     The twin gets more photons where the ``room`` left in the candidate's budget pays for
-    them at the first build's measured ``build_seconds`` (:func:`cost.twin_photons`, up to
-    :data:`cost.FROZEN_TWIN_GROWTH` ×); it is then the build kept, its noise read from the
-    pair (:func:`cost.frozen_of_larger`). Where the block relMSE its noise leaves is above
-    :func:`cost.frozen_limit`, the candidate is built again with the photons that bring it
-    there (:func:`cost.frozen_photons`) if the seconds left pay for them
-    (:func:`cost.light_paths_within`); where they do not, the cut build is kept while its
-    noise is within check's bound (:data:`~mi_twopass.evaluation.metrics.BLOCK_RELMSE_MAX`),
-    the noise counted in its score. Until session 33 it was dropped there, and path
-    rendered: on caustic.xml at 256², render seed 1, twopass rendered path at 64 and 128 spp,
-    relMSE 0.49 and 0.28 against a 16384-spp reference, where the rexes it had built (noise
-    read at 1.7-2.0e-3, the limit 1.5e-3) reach 0.026 and 0.014
-    (docs/results/revalidate-2026-11-29-s33).
+    them at the first build's measured ``build_seconds`` (:func:`cost.twin_photons`: up to
+    :data:`cost.FROZEN_TWIN_GROWTH` × or :func:`cost.least_cut`); it is then the build kept,
+    its noise read from the pair (:func:`cost.frozen_of_larger`). Where the kept build has
+    fewer photons than :func:`cost.least_cut` (their buckets blur the image beyond check's
+    bound, :data:`cost.CUT_MAX`) or the block relMSE its noise leaves is above
+    :func:`cost.frozen_limit`, the candidate is built again with the photons that do
+    (:func:`cost.frozen_photons`) if the seconds left pay for them at the first build's rate
+    (:func:`cost.affordable_photons`; :func:`cost.light_paths_within` where no build was
+    timed). Where they do not, a build below the least cut is left out, and one at or above it
+    is kept while its noise is within check's bound
+    (:data:`~mi_twopass.evaluation.metrics.BLOCK_RELMSE_MAX`), the noise counted in its
+    score. Until session 33 it was dropped there, and path rendered: on caustic.xml at 256²,
+    render seed 1, twopass rendered path at 64 and 128 spp, relMSE 0.49 and 0.28 against a
+    16384-spp reference, where the rexes it had built (noise read at 1.7-2.0e-3, the limit
+    1.5e-3) reach 0.026 and 0.014 (docs/results/revalidate-2026-11-29-s33); those rexes had
+    1/8-1/16 of the need and blurred the caustic to a bias part of 4.0-6.3e-3, which the
+    twin, as blurred as they, did not see (docs/results/cut-blur-2026-11-29).
 
     Returns (integrator, Frozen as predicted for it, seconds the twin and any rebuild took),
     or (None, reason, seconds) where the photons that would do are not affordable and the
-    noise is beyond the bound. Each measurement or prediction is recorded in
+    blur or the noise is beyond the bound. Each measurement or prediction is recorded in
     ``decision.frozen``."""
     photons, need = decision.fitted[c.name]
+    first = photons  # the photons build_seconds paid for
     t0 = time.perf_counter()
     more = cost.twin_photons(photons, need, build_seconds, room)
     if more > photons:  # kept: its own seed offset, so the render's seed finds it built
@@ -162,7 +169,15 @@ def fit_frozen(scene, sensor, c, integ, candidate, seed: int, decision, room: fl
     if want == photons:
         return integ, frozen, time.perf_counter() - t0
     room -= time.perf_counter() - t0
-    if want > cost.light_paths_within(room, path_m, film_pixels):
+    affordable = (cost.affordable_photons(first, build_seconds, room)
+                  if build_seconds > 0 else cost.light_paths_within(room, path_m, film_pixels))
+    if want > affordable:
+        if photons < cost.least_cut(need):
+            return None, (f"its rexes at {photons} photons are cut more than "
+                          f"{cost.CUT_MAX:g}-fold below the image's {need} (their buckets "
+                          f"blur it); the {want} photons that would do do not fit the "
+                          f"{max(room, 0.0):.3g} s left of its budget"), \
+                time.perf_counter() - t0
         if frozen.block <= BLOCK_RELMSE_MAX:  # within check's bound: kept, counted
             return integ, frozen, time.perf_counter() - t0
         return None, (f"its rexes' own noise at {photons} photons leaves a block relMSE of "
@@ -360,7 +375,11 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
        (:func:`predict_caustics`);
     4. per row, cheapest best case first: skipped for a structural reason, a best case that
        cannot beat the best measured score by ``cost.MIN_GAIN``, or the budget (rexes cut to
-       the photons the budget pays for first); else built and piloted on the same pixels;
+       the photons the budget pays for first, down to :func:`cost.least_probe`); else built
+       and piloted on the same pixels; a cut rex is then built again (:func:`fit_frozen`),
+       within the larger of its budget and what its measured score pays for
+       (:func:`cost.measured_room`), with the photons its blur and its own noise need, or
+       left out;
     5. variances again against the pilots' pooled pixel means (path's against the other
        pilots' means: :func:`~mi_twopass.compose.pilot.path_reference`); the lowest score,
        with the pilot and the prepasses built counted as spent for every candidate
@@ -460,7 +479,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
         except (ValueError, NotImplementedError) as err:  # refused: media, ...
             decision.skipped[c.name] = f"refused: {err}"
             continue
-        least = max(least, cost.least_cut(need))
+        least = max(least, cost.least_probe(need))
         floor = cost.prepass_floor(need, path_m, film_pixels)
         pilot_room = budget_factor * path_seconds - spent
         if measured and least < need and floor > pilot_room:
@@ -481,7 +500,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             decision.skipped[c.name] = _over_budget(spent, floor, budget, basis)
             if least < need and c.name not in decision.fitted:
                 decision.skipped[c.name] += (
-                    f"; cut to the fewest photons allowed, {least} (1/{cost.CUT_MAX} of the "
+                    f"; cut to the fewest photons allowed, {least} (1/{cost.PROBE_CUT} of the "
                     f"image's {need}), at least "
                     f"{cost.prepass_floor(least, path_m, film_pixels):.3g} s")
             continue
@@ -491,25 +510,33 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             decision.skipped[c.name] = f"refused: {err}"
             continue
         build_seconds += seconds
-        frozen = None
-        if c.name in decision.fitted:
-            integ, frozen, more = fit_frozen(scene, sensor, c, integ, candidate, seed, decision,
-                                             budget - (time.perf_counter() - t_start), path_m,
-                                             film_pixels, seconds)
-            build_seconds += more
-            seconds += more
-            if integ is None:
-                decision.skipped[c.name] = frozen
-                continue
         # seeds apart from path's: the bias test takes the two pilots to be independent
         run = pilot(scene, sensor, pixels, settings, candidate_estimator(integ), seed + _CANDIDATE_SEEDS)
         bias = cost.bias_squared(run.values, path_run.values)
-        measured[c.name] = cost.Measured(
+        m = cost.Measured(
             prepass_seconds=seconds,
             seconds_per_spp=run.seconds_per_spp(film_pixels),
             variance=relative_variance(run.values, ref), bias2=bias.b2,
-            mean_ratio=bias.ratio, bias_se=bias.se,
-            frozen=0.0 if frozen is None else max(frozen.pixel, 0.0))
+            mean_ratio=bias.ratio, bias_se=bias.se)
+        if c.name in decision.fitted:
+            # measured now: its budget is at least what its own score pays for, as its best
+            # case did not bound it (cost.measured_room); the pilot's figures stay the first
+            # build's, its bias an upper bound for a rebuild with more photons
+            # path's variance as the final choice reads it: against this pilot's means (path
+            # normalises its own rare caustic samples away), plus what its pilot missed
+            path_now = dataclasses.replace(path_m, variance=unseen + relative_variance(
+                path_run.values, path_reference(path_run.values, [run.values])))
+            room = max(budget - (time.perf_counter() - t_start),
+                       cost.measured_room(m, path_now, spp) - seconds)
+            integ, frozen, more = fit_frozen(scene, sensor, c, integ, candidate, seed, decision,
+                                             room, path_m, film_pixels, seconds)
+            build_seconds += more
+            if integ is None:
+                decision.skipped[c.name] = frozen
+                continue
+            m.prepass_seconds += more
+            m.frozen = max(frozen.pixel, 0.0)
+        measured[c.name] = m
         runs[c.name] = (c, integ, run)
         best = min(best, measured[c.name].score(spp))
         if first_done is None:

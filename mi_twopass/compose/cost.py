@@ -109,15 +109,22 @@ PREPASS_FLOOR_FACTOR = 2.0
 #: pass what it bounds
 PREPASS_LEAST_SECONDS = 0.15
 
-#: rexes are cut to at most CUT_MAX times fewer photons than the image needs: their buckets,
-#: which stop splitting at the pixel footprint with the image's need, then stop at most
-#: √CUT_MAX = 4 pixels across, half of check's block (BLOCK = 8 pixels), so the light a bucket
-#: spreads stays mostly within the block means the bias bound reads. Further cuts blur
-#: caustics and contact shadows into square leaves: on caustic.xml at 128² the block relMSE
-#: of two renders that read one build (64 spp, check's bias part, bias and the build's own
-#: noise together) was 2.3e-2 at 2^16 photons (256× fewer than the image's 17 M, image mean
-#: +1.7 % over eight builds), 5.8e-3 at 2^18, 1.0e-3 at 2^20 (16×), 1.2e-4 at 17 M
-CUT_MAX = (BLOCK // 2) ** 2
+#: the rexes twopass renders have at least 1/CUT_MAX of the photons the image needs. Their
+#: buckets stop splitting at the pixel footprint with the image's need, and coarser with fewer
+#: photons: cuts blur caustics and contact shadows into square leaves, a bias no number of
+#: samples removes. On caustic.xml at 64 spp, check's bias part (the block relMSE two renders
+#: of one build share: the blur and the build's own noise) read, at 1/16, 1/8, 1/4, 1/2 and
+#: all of the need: 1.3e-2, 7.5e-3, 6.0e-3, 1.4e-3, 1.0e-3 at 128² (need 2.1 M; 1/4 and 1/2
+#: over two more seeds: 5.5e-3 and 8.1e-3, 1.8e-3 and 1.2e-3) and 1.3e-2, 5.8e-3, 1.8e-3,
+#: 1.6e-3, 1.1e-3 at 256² (need 8.0 M) against check's bound of 3e-3
+#: (docs/results/cut-blur-2026-11-29). Until session 34 the cut was 16, from a measurement
+#: made when the need was counted otherwise (17 M at 128²); at 256², 64 spp, twopass's cut
+#: rexes then read 4.0-6.3e-3
+CUT_MAX = 2
+#: a cut rex's first build, which the pilot measures, may have 1/PROBE_CUT of the need: it is
+#: built again with at least 1/CUT_MAX where its measured score pays for that
+#: (:func:`measured_room`), and left out where it does not
+PROBE_CUT = (BLOCK // 2) ** 2
 #: a cut rex is built a second time with another seed and both are sampled on FROZEN_BLOCKS
 #: blocks of check's grid (all of a 128² film), FROZEN_SAMPLES samples per pixel
 #: (:func:`frozen_error`); the noise of its own photons, which no number of samples per pixel
@@ -577,16 +584,23 @@ def frozen_error(a: np.ndarray, b: np.ndarray, block_pixels: int) -> Frozen:
     return Frozen(float(block.mean()), se, float(pixel.mean()))
 
 
+def affordable_photons(photons: int, build_seconds: float, room: float) -> int:
+    """The photons ``room`` seconds pay for at a build's measured ``build_seconds`` per
+    ``photons`` (its fixed part counted per photon too: an upper bound of the cost)."""
+    return int(photons * max(room, 0.0) / build_seconds)
+
+
 def twin_photons(photons: int, need: int, build_seconds: float, room: float) -> int:
     """The photons of a cut rex's second build (:func:`mi_twopass.compose.choose.fit_frozen`):
-    up to :data:`FROZEN_TWIN_GROWTH` × ``photons`` and the image's ``need``, as many as the
-    ``room`` left in the candidate's budget pays for at the first build's ``build_seconds``
-    per ``photons`` (its fixed part counted per photon too: an upper bound of the cost); at
-    least ``photons`` (the twin then only measures the noise)."""
+    up to :data:`FROZEN_TWIN_GROWTH` × ``photons`` or :func:`least_cut` where that is more,
+    and the image's ``need``, as many as the ``room`` left in the candidate's budget pays for
+    (:func:`affordable_photons`); at least ``photons`` (the twin then only measures the
+    noise)."""
     if photons <= 0 or build_seconds <= 0:
         return int(photons)
-    affordable = int(photons * max(room, 0.0) / build_seconds)
-    return int(max(photons, min(need, FROZEN_TWIN_GROWTH * photons, affordable)))
+    grown = max(FROZEN_TWIN_GROWTH * photons, least_cut(need))
+    return int(max(photons, min(need, grown,
+                                affordable_photons(photons, build_seconds, room))))
 
 
 def frozen_of_larger(measured: Frozen, factor: float) -> Frozen:
@@ -600,19 +614,45 @@ def frozen_of_larger(measured: Frozen, factor: float) -> Frozen:
 
 
 def least_cut(need: int) -> int:
-    """The fewest photons twopass may cut a rex candidate whose image needs ``need`` to:
+    """The fewest photons a rex twopass renders may have where the image needs ``need``:
     need / :data:`CUT_MAX`."""
     return int(math.ceil(need / CUT_MAX))
 
 
+def least_probe(need: int) -> int:
+    """The fewest photons of a cut rex's first build, the one the pilot measures: need /
+    :data:`PROBE_CUT`."""
+    return int(math.ceil(need / PROBE_CUT))
+
+
+def measured_room(m: "Measured", path: "Measured", spp: int) -> float:
+    """The seconds a candidate measured by the pilot may spend on its prepasses in all:
+    :data:`BREAK_EVEN_SHARE` of its break-even prepass at ``spp`` samples per pixel, the T at
+    which (T + N·t_c)·e_c = path's score, e_c = v_c/N + b² its predicted error
+    (:meth:`Measured.predicted_error`); 0 where it does not beat path even with no prepass.
+
+    :func:`prepass_budget` bounds a candidate's first build by its best case, which is an
+    upper bound of the gain and loose for rexes (0 where the pilot reads the caustics as
+    path's), so it is capped at path's render time; once the pilot has measured the build,
+    the gain is known and a cut rex may be built again with the photons its blur and noise
+    need (:func:`mi_twopass.compose.choose.fit_frozen`). On caustic.xml at 256², 64 spp, the
+    cut rexes scored 0.013-0.014 against path's 0.67-1.5: a break-even of some 50 s where the
+    cap allowed path's 0.6-1.5 s."""
+    error = m.predicted_error(spp)
+    if error <= 0:
+        return math.inf
+    return BREAK_EVEN_SHARE * max(path.score(spp) / error - spp * m.seconds_per_spp, 0.0)
+
+
 def frozen_photons(photons: int, frozen: Frozen, need: int) -> int:
-    """The photons that bring a cut rex's measured ``frozen`` block noise at ``photons`` to
-    :func:`frozen_limit`, as :data:`FROZEN_DECAY` predicts, at most ``need``; ``photons``
-    where it is there already."""
+    """The photons a cut rex kept for the render needs: those that bring its measured
+    ``frozen`` block noise at ``photons`` to :func:`frozen_limit`, as :data:`FROZEN_DECAY`
+    predicts, and at least :func:`least_cut` (its blur); at most ``need``. ``photons`` where
+    it is there already."""
     limit = frozen_limit()
-    if frozen.block <= limit:
-        return int(photons)
-    more = math.ceil(photons * (frozen.block / limit) ** (1.0 / FROZEN_DECAY))
+    more = least_cut(need)
+    if frozen.block > limit:
+        more = max(more, math.ceil(photons * (frozen.block / limit) ** (1.0 / FROZEN_DECAY)))
     return int(max(photons, min(need, more)))
 
 

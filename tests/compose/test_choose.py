@@ -128,10 +128,11 @@ def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypa
     from mi_twopass.compose.choose import fit_frozen
 
     scene, sensor, tp, rex_row, path_m = rex_case()
-    cut, need = 1 << 16, 1 << 18
+    cut = 1 << 16
+    need = cut * cost.CUT_MAX  # the cut is the least allowed: only its noise decides
     film = 32 * 32
 
-    def fit(room):
+    def fit(room, need=need):
         decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
         integ = tp.candidate(rex_row, photons=cut)
         integ.ensure_prepass(scene, 0, sensor)
@@ -164,15 +165,45 @@ def test_a_cut_rex_is_built_twice_and_its_own_noise_decides_its_photons(monkeypa
     assert predicted.block < decision.frozen[rex_row.name][0][1].block
 
 
-def test_a_cut_rexs_twin_gets_the_photons_its_budget_pays_for_and_is_the_build_kept(monkeypatch):
-    """With room in its budget, the second build of a cut rex gets more photons (up to
-    FROZEN_TWIN_GROWTH x, at the first build's seconds per photon) and renders: its prepass
-    seed is offset, so the render's seed finds it built, and its noise is read from the pair
-    as the larger build's (frozen_of_larger). With no room it has the cut's photons."""
+def test_a_rex_cut_past_the_least_cut_is_rebuilt_or_left_out_whatever_its_noise(monkeypatch):
+    """Below cost.least_cut (1/CUT_MAX of the need) a cut rex's buckets blur the image beyond
+    check's bound, which its twin, as blurred, does not read: however quiet its own photons,
+    it is built again with the least cut's photons where the room pays for them, and left out,
+    with the reason, where it does not."""
     from mi_twopass.compose.choose import fit_frozen
 
     scene, sensor, tp, rex_row, path_m = rex_case()
-    cut, need = 1 << 16, 1 << 20
+    cut = 1 << 16
+    need = cut * cost.PROBE_CUT
+    assert cost.least_cut(need) > cut
+    monkeypatch.setattr(cost, "FROZEN_SHARE", 1e9)  # any noise is below the limit
+
+    def fit(room):
+        decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
+        integ = tp.candidate(rex_row, photons=cut)
+        _, seconds = integ.ensure_prepass(scene, 0, sensor)
+        return decision, fit_frozen(scene, sensor, rex_row, integ, tp.candidate, 0, decision,
+                                    room, path_m, 32 * 32, seconds)
+
+    decision, (kept, why, _) = fit(room=0.0)
+    assert kept is None and f"cut more than {cost.CUT_MAX:g}-fold" in why
+    assert str(cost.least_cut(need)) in why
+    decision, (kept, _, _) = fit(room=1e9)
+    assert kept.photons == cost.least_cut(need)  # the twin grows to it, and is kept
+    assert decision.fitted[rex_row.name] == (cost.least_cut(need), need)
+
+
+def test_a_cut_rexs_twin_gets_the_photons_its_budget_pays_for_and_is_the_build_kept(monkeypatch):
+    """With room in its budget, the second build of a cut rex gets more photons (up to
+    FROZEN_TWIN_GROWTH x, or the least cut where that is more, at the first build's seconds
+    per photon) and renders: its prepass seed is offset, so the render's seed finds it built,
+    and its noise is read from the pair as the larger build's (frozen_of_larger). With no room
+    it has the cut's photons."""
+    from mi_twopass.compose.choose import fit_frozen
+
+    scene, sensor, tp, rex_row, path_m = rex_case()
+    cut, need = 1 << 16, 1 << 18
+    assert cost.least_cut(need) < cost.FROZEN_TWIN_GROWTH * cut
     monkeypatch.setattr(cost, "FROZEN_SHARE", 1e9)  # any noise is below the limit
     decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
     integ = tp.candidate(rex_row, photons=cut)
@@ -181,6 +212,8 @@ def test_a_cut_rexs_twin_gets_the_photons_its_budget_pays_for_and_is_the_build_k
     assert abs(cost.twin_photons(cut, need, seconds, room) - cut * 2.5) <= 1
     assert cost.twin_photons(cut, need, seconds, 1e9) == cost.FROZEN_TWIN_GROWTH * cut
     assert cost.twin_photons(cut, 2 * cut, seconds, 1e9) == 2 * cut  # at most the need
+    big = cut * cost.PROBE_CUT  # the least cut is more than the growth: the twin reaches it
+    assert cost.twin_photons(cut, big, seconds, 1e9) == cost.least_cut(big)
     kept, frozen, _ = fit_frozen(scene, sensor, rex_row, integ, tp.candidate, 0, decision,
                                  1e9, path_m, 32 * 32, seconds)
     more = cost.FROZEN_TWIN_GROWTH * cut
@@ -190,7 +223,8 @@ def test_a_cut_rexs_twin_gets_the_photons_its_budget_pays_for_and_is_the_build_k
     assert (n0, n1) == (cut, more) and larger is frozen
     assert frozen.pixel == pytest.approx(pair.pixel * 2 * 0.5 / 1.5)  # rho = 4^-0.5
     assert kept.ensure_prepass(scene, 0, sensor)[1] == 0.0  # the render's seed finds it
-    # no room: the twin has the cut's photons and only measures
+    # no room: the twin has the cut's photons and only measures (the cut is the least one)
+    need = cut * cost.CUT_MAX
     decision = cost.Decision(chosen=rex_row, spp=SPP, fitted={rex_row.name: (cut, need)})
     kept, _, _ = fit_frozen(scene, sensor, rex_row, integ, tp.candidate, 0, decision, 0.0,
                             path_m, 32 * 32, seconds)

@@ -1,5 +1,6 @@
 """twopass's cost model (mi_twopass.compose.cost): the table, forced choices, the best case, the
 bias estimate and the score."""
+import dataclasses
 import math
 
 import numpy as np
@@ -228,17 +229,36 @@ def test_frozen_error_reads_the_noise_two_builds_do_not_share_and_drops_the_samp
 
 def test_cut_photons_stay_within_the_blur_limit_and_rise_with_measured_noise():
     need = 16_000_000
-    assert cost.least_cut(need) == need // cost.CUT_MAX == need // (cost.BLOCK // 2) ** 2
+    assert cost.least_cut(need) == need // cost.CUT_MAX
+    assert cost.least_probe(need) == need // cost.PROBE_CUT < cost.least_cut(need)
     limit = cost.frozen_limit()
     assert limit == cost.FROZEN_SHARE * cost.BLOCK_RELMSE_MAX
     quiet = cost.Frozen(block=0.5 * limit, block_se=1e-4, pixel=1e-3)
-    assert cost.frozen_photons(1_000_000, quiet, need) == 1_000_000
-    noisy = cost.Frozen(block=2.0 * limit, block_se=1e-4, pixel=1e-2)
-    more = cost.frozen_photons(1_000_000, noisy, need)
-    # (2)^(1/FROZEN_DECAY) as many photons, and the noise predicted for them is the limit
-    assert more == int(np.ceil(1_000_000 * 2.0 ** (1 / cost.FROZEN_DECAY)))
-    assert noisy.scaled(more / 1_000_000).block == pytest.approx(limit, rel=1e-6)
+    assert cost.frozen_photons(10_000_000, quiet, need) == 10_000_000
+    # however quiet, a build below the least cut needs the least cut (its blur)
+    assert cost.frozen_photons(1_000_000, quiet, need) == cost.least_cut(need)
+    noisy = cost.Frozen(block=1.2 * limit, block_se=1e-4, pixel=1e-2)
+    more = cost.frozen_photons(6_000_000, noisy, need)
+    # (1.2)^(1/FROZEN_DECAY) as many photons, and the noise predicted for them is the limit
+    assert more == int(np.ceil(6_000_000 * 1.2 ** (1 / cost.FROZEN_DECAY))) > cost.least_cut(need)
+    assert noisy.scaled(more / 6_000_000).block == pytest.approx(limit, rel=1e-6)
     assert cost.frozen_photons(1_000_000, cost.Frozen(1.0, 1e-4, 1.0), need) == need
+
+
+def test_a_measured_candidates_room_is_a_share_of_its_break_even_prepass():
+    """cost.measured_room: BREAK_EVEN_SHARE of the prepass T at which the candidate's score
+    (T + N·t_c)·e_c equals path's; 0 where it loses even with no prepass."""
+    path = cost.Measured(prepass_seconds=0.0, seconds_per_spp=0.01, variance=40.0, bias2=0.0,
+                         mean_ratio=1.0)
+    rex = cost.Measured(prepass_seconds=0.3, seconds_per_spp=0.008, variance=0.5, bias2=1e-3,
+                        mean_ratio=1.0)
+    spp = 64
+    room = cost.measured_room(rex, path, spp)
+    even = dataclasses.replace(rex, prepass_seconds=room / cost.BREAK_EVEN_SHARE)
+    assert even.score(spp) == pytest.approx(path.score(spp), rel=1e-9)
+    assert room > 10 * path.predicted_seconds(spp)  # far ahead: far past path's render time
+    worse = dataclasses.replace(rex, variance=80.0)
+    assert cost.measured_room(worse, path, spp) == 0.0
 
 
 def test_a_prepass_own_noise_counts_as_an_error_no_sample_removes():
