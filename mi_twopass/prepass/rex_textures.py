@@ -81,7 +81,7 @@ import numpy as np
 
 from .. import units
 from ..evaluation.metrics import BLOCK, BLOCK_RELMSE_MAX, RELMSE_EPS
-from ..host_arrays import jit
+from ..host_arrays import jit, vectors
 from ..progress import progress
 from ..rays import shadow_ray, spawn_ray
 from ..scene.bounds import infinite_light_leaks, scene_bounds
@@ -1727,7 +1727,11 @@ def probe_exposure(scene, tables, node_rex, level, ix, iy, nodes, seed, m=16):
 
 
 def _probe_open(scene, tables, node_rex, level, ix, iy, nodes, rng, m):
-    """:func:`probe_exposure` for one batch of buckets."""
+    """:func:`probe_exposure` for one batch of buckets. The lanes' parameters come from numpy
+    (``rng``); their points, frames and the three rays run as one Dr.Jit kernel. Until session
+    34 the points and frames were numpy float64 and each ray direction a kernel of its own:
+    0.57 s of the 2.26 s rex prepass of mixed_room at 256², 0.48 s of veach-bidir's 2.05 s
+    (``tools/prepass_profile.py``)."""
     k = int(round(math.sqrt(m)))
     lane_node = np.repeat(np.arange(len(nodes)), k * k)
     sub = np.tile(np.arange(k * k), len(nodes))
@@ -1735,57 +1739,60 @@ def _probe_open(scene, tables, node_rex, level, ix, iy, nodes, rng, m):
     u = (ix[nodes][lane_node] + (sub % k + rng.random(len(sub))) / k) * h
     v = (iy[nodes][lane_node] + (sub // k + rng.random(len(sub))) / k) * h
     rex = node_rex[nodes][lane_node].astype(np.int64)
-    p = np.zeros((len(sub), 3))
-    n = np.zeros((len(sub), 3))
-    valid = np.zeros(len(sub), bool)
     tri = tables.rex_tri[rex]
     is_tri = tri >= 0
-    if is_tri.any():
-        t = tri[is_tri]
-        ut, vt = u[is_tri, None], v[is_tri, None]
-        p[is_tri] = tables.tri_p0[t] + ut * tables.tri_e1[t] + vt * tables.tri_e2[t]
-        nt = np.cross(tables.tri_e1[t], tables.tri_e2[t])
-        ln = np.linalg.norm(nt, axis=1, keepdims=True)
-        n[is_tri] = np.where(ln > 0, nt / np.where(ln > 0, ln, 1), 0)
-        valid[is_tri] = (ut[:, 0] + vt[:, 0] <= 1) & (ln[:, 0] > 0)
+    U, V = jit(mi.Float, u.astype(np.float32)), jit(mi.Float, v.astype(np.float32))
+    on_tri = jit(mi.Bool, is_tri)
+    tid = jit(mi.UInt32, np.where(is_tri, tri, 0).astype(np.uint32))
+    e1 = dr.gather(mi.Vector3f, tables.d_tri_e1, tid, on_tri)
+    e2 = dr.gather(mi.Vector3f, tables.d_tri_e2, tid, on_tri)
+    p = dr.gather(mi.Point3f, tables.d_tri_p0, tid, on_tri) + U * e1 + V * e2
+    n = dr.cross(e1, e2)
+    ln = dr.norm(n)
+    n = dr.select(ln > 0, n / dr.select(ln > 0, ln, 1.0), 0.0)
+    valid = on_tri & (U + V <= 1) & (ln > 0)
     shapes = tables.rex_shape[rex]
-    for s_idx in np.unique(shapes[~is_tri]):  # analytic shapes, one vectorised call each
-        sel = np.nonzero((shapes == s_idx) & ~is_tri)[0]
-        try:
-            si = tables.shapes[int(s_idx)].eval_parameterization(
-                mi.Point2f(jit(mi.Float, u[sel].astype(np.float32)),
-                           jit(mi.Float, v[sel].astype(np.float32))))
-            dr.eval(si.p, si.n, si.t)
-        except Exception:  # a shape without a parameterisation: leave its buckets open
-            continue
-        p[sel] = np.stack([np.asarray(si.p[c], np.float64) for c in range(3)], 1)
-        n[sel] = np.stack([np.asarray(si.n[c], np.float64) for c in range(3)], 1)
-        valid[sel] = np.asarray(si.is_valid(), bool)
-    n = np.where((tables.rex_side[rex] == 1)[:, None], -n, n)
+    if not is_tri.all():  # analytic shapes, one vectorised call each
+        p_a, n_a = np.zeros((len(sub), 3), np.float32), np.zeros((len(sub), 3), np.float32)
+        valid_a = np.zeros(len(sub), bool)
+        for s_idx in np.unique(shapes[~is_tri]):
+            sel = np.nonzero((shapes == s_idx) & ~is_tri)[0]
+            try:
+                si = tables.shapes[int(s_idx)].eval_parameterization(
+                    mi.Point2f(jit(mi.Float, u[sel].astype(np.float32)),
+                               jit(mi.Float, v[sel].astype(np.float32))))
+                dr.eval(si.p, si.n, si.t)
+            except Exception:  # a shape without a parameterisation: leave its buckets open
+                continue
+            p_a[sel] = np.stack([np.asarray(si.p[c], np.float32) for c in range(3)], 1)
+            n_a[sel] = np.stack([np.asarray(si.n[c], np.float32) for c in range(3)], 1)
+            valid_a[sel] = np.asarray(si.is_valid(), bool)
+        p = dr.select(on_tri, p, vectors(p_a, mi.Point3f))
+        n = dr.select(on_tri, n, vectors(n_a, mi.Vector3f))
+        valid |= ~on_tri & jit(mi.Bool, valid_a)
+    n = dr.select(jit(mi.Bool, tables.rex_side[rex] == 1), -n, n)
     # a random tangent per point
-    a = np.where(np.abs(n[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    t1 = np.cross(n, a)
-    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-30)
-    t2 = np.cross(n, t1)
-    phi = rng.random(len(sub)) * 2 * math.pi
-    tan = np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2
-    eps = 1e-5 * (tables.bounds.diagonal + np.abs(p).max(axis=1, keepdims=True))
+    t1, t2 = mi.coordinate_system(n)
+    phi = jit(mi.Float, (rng.random(len(sub)) * 2 * math.pi).astype(np.float32))
+    tan = dr.cos(phi) * t1 + dr.sin(phi) * t2
+    eps = 1e-5 * (tables.bounds.diagonal + dr.max(dr.abs(p)))
     origin = p + n * eps
-    enclosed = valid.copy()
-    rays = 0
+    enclosed = mi.Bool(valid)
+    tried = []
     for d in (n, tan, -tan):
-        rays += int(np.count_nonzero(enclosed))
-        ray = mi.Ray3f(mi.Point3f(*(jit(mi.Float, origin[:, c].astype(np.float32)) for c in range(3))),
-                       mi.Vector3f(*(jit(mi.Float, d[:, c].astype(np.float32)) for c in range(3))))
-        si = scene.ray_intersect(ray, mi.Bool(enclosed))
+        tried.append(mi.Bool(enclosed))
+        ray = mi.Ray3f(origin, d)
+        si = scene.ray_intersect(ray, enclosed)
         # only the back of a one-sided surface walls a point in: a two-sided or transmissive
         # BSDF's normal says nothing about inside and outside (a room of two-sided walls whose
         # normals point out would otherwise count as the inside of a closed object)
         one_sided = ~mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.BackSide)
-        back = si.is_valid() & (dr.dot(si.n, ray.d) > 0) & one_sided
-        enclosed &= np.asarray(back, bool)
-    open_count = np.bincount(lane_node, weights=(valid & ~enclosed).astype(np.float64),
-                             minlength=len(nodes))
+        enclosed &= si.is_valid() & (dr.dot(si.n, ray.d) > 0) & one_sided
+    is_open = valid & ~enclosed
+    dr.eval(is_open, valid, *tried)
+    rays = sum(int(np.count_nonzero(np.asarray(t, bool))) for t in tried)
+    is_open, valid = np.asarray(is_open, bool), np.asarray(valid, bool)
+    open_count = np.bincount(lane_node, weights=is_open.astype(np.float64), minlength=len(nodes))
     total = np.bincount(lane_node, weights=valid.astype(np.float64), minlength=len(nodes))
     return np.where(total > 0, open_count / np.maximum(total, 1), 1.0), rays
 
