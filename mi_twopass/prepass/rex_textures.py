@@ -1775,7 +1775,8 @@ def _probe_open(scene, tables, node_rex, level, ix, iy, nodes, rng, m):
     t1, t2 = mi.coordinate_system(n)
     phi = jit(mi.Float, (rng.random(len(sub)) * 2 * math.pi).astype(np.float32))
     tan = dr.cos(phi) * t1 + dr.sin(phi) * t2
-    eps = 1e-5 * (tables.bounds.diagonal + dr.max(dr.abs(p)))
+    # the scene's size as an input, not a literal: one kernel for every scene
+    eps = 1e-5 * (dr.opaque(mi.Float, tables.bounds.diagonal) + dr.max(dr.abs(p)))
     origin = p + n * eps
     enclosed = mi.Bool(valid)
     tried = []
