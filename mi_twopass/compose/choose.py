@@ -519,11 +519,12 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             variance=relative_variance(run.values, ref), bias2=bias.b2,
             mean_ratio=bias.ratio, bias_se=bias.se)
         if c.name in decision.fitted:
-            # measured now: its budget is at least what its own score pays for, as its best
-            # case did not bound it (cost.measured_room); the pilot's figures stay the first
-            # build's, its bias an upper bound for a rebuild with more photons
-            # path's variance as the final choice reads it: against this pilot's means (path
-            # normalises its own rare caustic samples away), plus what its pilot missed
+            # measured now, its room is at least what its own score pays for
+            # (cost.measured_room), as its best case could not bound it. path's variance there
+            # is read as the final choice reads it: against this pilot's means (path
+            # normalises its own rare caustic samples away), plus what its pilot missed. The
+            # pilot's figures stay the first build's, its bias an upper bound for a rebuild
+            # with more photons
             path_now = dataclasses.replace(path_m, variance=unseen + relative_variance(
                 path_run.values, path_reference(path_run.values, [run.values])))
             room = max(budget - (time.perf_counter() - t_start),
