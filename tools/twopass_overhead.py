@@ -4,8 +4,9 @@ scene fingerprint (the prepass key) alone, and a profile of its render.
     python tools/twopass_overhead.py scenes_xml/many_lights.xml [--res 256] [--spp 4]
 
 Set ``MI_TWOPASS_VARIANT=cuda_ad_rgb`` for the GPU. Each render is a fresh integrator (as the
-harness renders every point), timed to the numpy copy; the fastest of ``--repeats`` counts,
-after one untimed render that compiles the kernels. Then ``--repeats`` fingerprints of the
+harness renders every point), timed to the numpy copy, after one untimed render each that
+compiles the kernels; ``--repeats`` renders of each, path's and twopass's interleaved, give the
+fastest and the median. Then ``--repeats`` fingerprints of the
 scene (with and without the camera) are timed, and one twopass render is profiled
 (cProfile, the ``--top`` entries by cumulative time).
 """
@@ -43,11 +44,16 @@ def main():
     a = ap.parse_args()
     scene = load_scene(a.scene, film_res=a.res)
     print(f"variant {mi.variant()}, {a.scene} at {a.res} px, {a.spp} spp", flush=True)
-    for spec in ({"type": "path"}, {"type": "twopass"}):
+    specs = ({"type": "path"}, {"type": "twopass"})
+    for spec in specs:
         render_seconds(scene, spec, a.spp)  # compiles
-        best = min(render_seconds(scene, spec, a.spp) for _ in range(a.repeats))
-        print(f"{spec['type']:8s} render {best * 1000:.1f} ms (fastest of {a.repeats})",
-              flush=True)
+    times = {spec["type"]: [] for spec in specs}
+    for _ in range(a.repeats):  # interleaved: the machine's drift falls on both alike
+        for spec in specs:
+            times[spec["type"]].append(render_seconds(scene, spec, a.spp))
+    for name, t in times.items():
+        print(f"{name:8s} render {min(t) * 1000:.1f} ms fastest, {np.median(t) * 1000:.1f} ms "
+              f"median of {a.repeats}", flush=True)
     for camera in (False, True):
         times = []
         for _ in range(a.repeats):
