@@ -72,13 +72,17 @@ class TwoPassChooser(TwoPassIntegrator):
            path's predicted render time: :func:`mi_twopass.compose.cost.prepass_budget`;
            for the others ``pilot_budget``), or where the scene gives it nothing (one
            emitter for spike lists, no Lambertian surface, a finite max_depth for a far
-           field); else build its prepass and pilot it on the same pixels (rexes cut below
-           the image's photon need are built twice, the second time with up to 4× the
-           photons the rest of their budget pays for, and that build renders; the pair
-           measures the photons' own noise, counted in the score; above half of check's
-           bound they are built again with the photons that bring it there where the
-           budget pays for them, else kept within the bound and dropped beyond it:
-           :func:`mi_twopass.compose.choose.fit_frozen`)
+           field); else build its prepass and pilot it on the same pixels. Rexes may be
+           built first with as few as 1/16 of the image's photon need; once piloted, their
+           budget is at least half the prepass their measured score breaks even at
+           (:func:`mi_twopass.compose.cost.measured_room`). They are built a second time
+           with up to 4× the photons (or half the need, where that is more) that budget
+           pays for, and that build renders; the pair measures the photons' own noise,
+           counted in the score. They are built again where they have fewer than half the
+           need (their buckets blur beyond check's bound) or their noise is above half of
+           check's bound, with the photons that do, if the budget pays for them; else a
+           rex below half the need is dropped, and one above it kept within the bound and
+           dropped beyond it (:func:`mi_twopass.compose.choose.fit_frozen`)
         3. take the candidate of least predicted relMSE × seconds, (S + N·t) × (v/N + b²),
            N the render's samples per pixel, S the seconds the pilot and the prepasses have
            taken (spent whichever renders), b² its squared relative bias against the path
