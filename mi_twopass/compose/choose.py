@@ -232,7 +232,7 @@ def traits(scene, max_depth) -> cost.SceneTraits:
 
 
 def predict_caustics(scene, sensor, variance: cost.VarianceParts, allowed, candidate,
-                     scene_traits: cost.SceneTraits, decision: cost.Decision):
+                     scene_traits: cost.SceneTraits, decision: cost.Decision, seed: int = 0):
     """path's caustic variance as the larger of what its pilot measured and what rex's probe
     photons predict (:mod:`mi_twopass.prepass.sharp_light`): ``(variance parts, the variance
     added to path's total)``.
@@ -245,14 +245,15 @@ def predict_caustics(scene, sensor, variance: cost.VarianceParts, allowed, candi
     structure, and some surface is specular (without one no light is sharp). The
     measurement is the size pass and probe shoot rex's photon budget reads anyway
     (remembered by the candidate, :meth:`~mi_twopass.integrators.rex.RexIntegrator.
-    sharp_light`); a scene rex refuses (media) has its rex rows skipped here."""
+    sharp_light`, at the prepass ``seed`` its builds read it at); a scene rex refuses (media)
+    has its rex rows skipped here."""
     rows = [c for c in allowed if c.caustics == "rex"
             and cost.structural_reason(c, scene_traits) is None]
     if not rows or not scene_traits.specular or \
             variance.caustic >= cost.CAUSTIC_SHARE * variance.total:
         return variance, 0.0
     try:
-        sharp = candidate(rows[0]).sharp_light(scene, sensor=sensor)
+        sharp = candidate(rows[0]).sharp_light(scene, seed, sensor)
     except (ValueError, NotImplementedError) as err:  # refused: media, ...
         for c in rows:
             decision.skipped[c.name] = f"refused: {err}"
@@ -420,7 +421,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
     decision = cost.Decision(chosen=path_row, spp=spp, probe=probed)
     scene_traits = traits(scene, max_depth)
     variance, unseen = predict_caustics(scene, sensor, variance, allowed, candidate,
-                                        scene_traits, decision)
+                                        scene_traits, decision, seed)
     path_m = cost.Measured(prepass_seconds=0.0,  # bias 0 exactly: path is the reference
                            seconds_per_spp=path_run.seconds_per_spp(film_pixels),
                            variance=variance.total, bias2=0.0, mean_ratio=1.0)
@@ -475,7 +476,7 @@ def choose(scene, sensor, seed: int, render_spp: int, allowed, candidate,
             continue
         integ = candidate(c)
         try:  # rex's photon need: a size pass and a probe shoot
-            least, need = cost.light_paths(integ, scene, sensor)
+            least, need = cost.light_paths(integ, scene, sensor, seed)
         except (ValueError, NotImplementedError) as err:  # refused: media, ...
             decision.skipped[c.name] = f"refused: {err}"
             continue

@@ -314,15 +314,15 @@ def spend(measured: dict, seconds: float) -> None:
         m.sunk_seconds = seconds
 
 
-def light_paths(integ, scene, sensor=None) -> tuple[int, int]:
+def light_paths(integ, scene, sensor=None, seed: int = 0) -> tuple[int, int]:
     """``(least, need)``: the light paths a candidate's prepass traces. rex: the photons the
     image needs (:meth:`~mi_twopass.integrators.rex.RexIntegrator.photon_budget`, measured by a
-    size pass and a probe shoot), and as few as :func:`least_light_paths` where twopass cuts
-    them to its budget (:func:`light_paths_within`); the others: their radiosity particles,
-    not cut."""
+    size pass and a probe shoot at the prepass ``seed``, which its builds then read), and as
+    few as :func:`least_light_paths` where twopass cuts them to its budget
+    (:func:`light_paths_within`); the others: their radiosity particles, not cut."""
     least = least_light_paths(integ)
     if hasattr(integ, "photon_budget"):
-        return least, int(integ.photon_budget(scene, sensor=sensor))
+        return least, int(integ.photon_budget(scene, seed, sensor))
     return least, least
 
 

@@ -300,6 +300,10 @@ class TwoPassIntegrator(mi.SamplingIntegrator):
     #: radiosity solves this prepass may share with others of the same scene and camera (the
     #: ``SolveMemo`` twopass gives its candidates, :func:`mi_twopass.prepass.radiosity.build`)
     radiosity_memo = None
+    #: the rex size pass and probe shoot this prepass may share with others of the same scene
+    #: and camera (the ``ProbeMemo`` twopass gives its candidates,
+    #: :func:`mi_twopass.prepass.rex_textures.build`)
+    probe_memo = None
 
     def __init__(self, props):
         super().__init__(props)

@@ -333,7 +333,7 @@ class RexIntegrator(TwoPassIntegrator):
         if memo is None or memo[0] is not scene or memo[1] != key:
             check_no_media(scene)
             found = measure_sharp_light(scene, self.rex_settings(scene),
-                                        self.prepass_seed(seed), sensor)
+                                        self.prepass_seed(seed), sensor, self.probe_memo)
             self._sharp_memo = memo = (scene, key, found)
         return memo[2]
 
@@ -348,7 +348,8 @@ class RexIntegrator(TwoPassIntegrator):
     def prepass(self, scene, seed):
         """Size pass, light pass and rex build (§3.4):
         :func:`mi_twopass.prepass.rex_textures.build`."""
-        return build_rexes(scene, self.rex_settings(scene), seed, sensor=self.prepass_sensor)
+        return build_rexes(scene, self.rex_settings(scene), seed, sensor=self.prepass_sensor,
+                           memo=self.probe_memo)
 
     def prepass_stats(self, pre):
         stats = dict(pre.stats)

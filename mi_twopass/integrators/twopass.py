@@ -15,6 +15,7 @@ from ..compose import cost
 from ..compose.choose import choose, path_without_pilot, probe_gate
 from ..compose.pilot import PilotSettings
 from ..prepass.radiosity import SolveMemo
+from ..prepass.rex_textures import ProbeMemo
 from .base import TwoPassIntegrator, read_choice, read_float, read_int
 from .component_path import ComponentPathIntegrator
 from .pathtrace import first_nondelta_hit
@@ -180,6 +181,8 @@ class TwoPassChooser(TwoPassIntegrator):
         self._candidates = {}  # plugin name+props -> integrator, kept so prepasses are reused
         # radiosity solves the candidates share within one prepass (radiosity.build's memo)
         self._radiosity_memo = SolveMemo()
+        # rex size passes and probe shoots they share within one prepass (rex_textures.build's)
+        self._probe_memo = ProbeMemo()
         self._render_spp = 0
         self._early = None  # (key, Choice) of the last early_path that found path
         self._probed = None  # path's render probe made by early_path, for choose
@@ -206,8 +209,11 @@ class TwoPassChooser(TwoPassIntegrator):
         key = (c.plugin, c.props, photons, seed_offset)
         if twin and c.plugin != "path":
             extra = {"photons": int(photons)} if photons > 0 else {}
-            return mi.load_dict({"type": c.plugin, **self._common_props(), **dict(c.props),
-                                 **extra})
+            twin_integ = mi.load_dict({"type": c.plugin, **self._common_props(),
+                                       **dict(c.props), **extra})
+            twin_integ.radiosity_memo = self._radiosity_memo
+            twin_integ.probe_memo = self._probe_memo
+            return twin_integ
         if key not in self._candidates:
             if c.plugin == "path":
                 props = mi.Properties()
@@ -221,6 +227,7 @@ class TwoPassChooser(TwoPassIntegrator):
                 self._candidates[key] = mi.load_dict(
                     {"type": c.plugin, **props, **dict(c.props), **extra})
                 self._candidates[key].radiosity_memo = self._radiosity_memo
+                self._candidates[key].probe_memo = self._probe_memo
         return self._candidates[key]
 
     # -- prepass: pilot, then the structures that pay ---------------------------------------
@@ -228,14 +235,18 @@ class TwoPassChooser(TwoPassIntegrator):
         """The pilot and the structures that may pay: :func:`mi_twopass.compose.choose.choose`.
         The candidates share their radiosity solves within it (one solve where spike_gather,
         radiosity_gather and radiance_cache ask for the same budget: the row of spike lists
-        with the radiance cache asks for spike_gather's, ``cost.CACHE_RADIOSITY``)."""
+        with the radiance cache asks for spike_gather's, ``cost.CACHE_RADIOSITY``) and their
+        rex plans (one size pass and probe shoot for the photon need, a cut build, its twin and
+        its rebuild: ``rex_textures.ProbeMemo``)."""
         self._radiosity_memo.clear()
+        self._probe_memo.clear()
         try:
             return choose(scene, self.prepass_sensor, seed, self._render_spp, self.allowed,
                           self.candidate, self.pilot_settings, self.pilot_budget,
                           self.max_depth, self.path_probe, self._probed)
-        finally:
-            self._radiosity_memo.clear()  # the chosen candidate keeps its own structure
+        finally:  # the chosen candidate keeps its own structure
+            self._radiosity_memo.clear()
+            self._probe_memo.clear()
 
     def early_path(self, scene, sensor, seed):
         """``(Choice of path, seconds)`` where the gates that count samples rule out the pilot

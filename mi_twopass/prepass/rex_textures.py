@@ -1461,28 +1461,76 @@ def photon_budget(scene, settings, seed: int = 0, sensor=None) -> int:
 @dataclass
 class ProbeMeasure:
     """What the size pass and the probe shoot measure before any photon is shot for good:
-    the rex tables, the size pass's ``need`` (:func:`size_pass`), the emitters' power
-    (:func:`probe_emitters`) and the probe's ``(guide, visible rate, all rate, records)``
-    (:func:`probe_shoot`)."""
+    the rex tables, the size pass's ``cap``, ``seen``, ``size_rays`` and ``need``
+    (:func:`size_pass`), the emitters' ``power`` and ``adapt_dim`` (:func:`probe_emitters`)
+    and the probe's ``(guide, visible rate, all rate, records)`` (:func:`probe_shoot`): the
+    plan of a build's light pass, which its photon count does not change."""
 
     tables: "RexTables"
     need: dict
     power: np.ndarray
     probe: tuple
+    cap: np.ndarray = None
+    seen: np.ndarray = None
+    size_rays: int = 0
+    adapt_dim: np.ndarray = None
 
 
-def measure_probe(scene, settings, seed: int = 0, sensor=None) -> ProbeMeasure:
+class ProbeMemo:
+    """The size pass and probe shoot (:class:`ProbeMeasure`) that the rex prepasses of one
+    scene and camera share (``twopass``'s candidates: the photon need it reads, a cut build,
+    its twin and its rebuild; cleared with each of its prepasses). Keyed by the settings but
+    their photon count, which the plan does not read, and the sensor: a build that finds its
+    plan here shoots only its own photons, with its own seed. Sharing the plan is sound: given
+    the plan, each build's photons are an estimate of the same light (the plan shares them out
+    and weights them, :mod:`mi_twopass.prepass.light_guide`), and the buckets' cap is the
+    image's, which a twin of another seed reads alike. A plain class, not a dict, as
+    :class:`~mi_twopass.prepass.radiosity.SolveMemo` (Dr.Jit traverses an integrator's
+    dicts)."""
+
+    def __init__(self):
+        self._plans = {}
+
+    @staticmethod
+    def key(settings, sensor) -> tuple:
+        return replace(settings, photons=0), id(sensor)
+
+    def get(self, settings, sensor):
+        return self._plans.get(self.key(settings, sensor))
+
+    def put(self, settings, sensor, measure: ProbeMeasure) -> None:
+        self._plans[self.key(settings, sensor)] = measure
+
+    def clear(self) -> None:
+        self._plans.clear()
+
+    def __len__(self) -> int:
+        return len(self._plans)
+
+
+def measure_probe(scene, settings, seed: int = 0, sensor=None,
+                  memo: ProbeMemo | None = None) -> ProbeMeasure:
     """The size pass and the probe shoot of :func:`photon_budget` (a small part of the
-    prepass: 0.1-0.2 s at 256² on the corpus once its kernels are compiled)."""
+    prepass: 0.1-0.2 s at 256² on the corpus once its kernels are compiled); ``memo``: taken
+    from it where a build of the same scene and camera measured it (:class:`ProbeMemo`), else
+    measured and put there."""
+    if memo is not None:
+        found = memo.get(settings, sensor)
+        if found is not None:
+            return found
     tables = RexTables(scene)
-    _, seen, _, need = size_pass(scene, tables, settings, seed, sensor)
+    cap, seen, size_rays, need = size_pass(scene, tables, settings, seed, sensor)
     power, adapt_dim = probe_emitters(scene, seed, tables.bounds)
     probe = probe_shoot(scene, tables, seen, settings, seed, power, adapt_dim,
                         settings.direct == "rex")
-    return ProbeMeasure(tables, need, power, probe)
+    found = ProbeMeasure(tables, need, power, probe, cap, seen, size_rays, adapt_dim)
+    if memo is not None:
+        memo.put(settings, sensor, found)
+    return found
 
 
-def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None):
+def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None,
+               measured: ProbeMeasure | None = None):
     """Everything of the light pass but the final photons: the probe shoot, the budget, the
     light quadtrees and the final shoot's allocation. Returns (the :class:`FinalShoot`, or None
     when no light emits; pilot rays; stats).
@@ -1490,12 +1538,18 @@ def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
     ``settings.photons`` ≤ 0: the budget the image needs (:func:`photon_need`, from the size
     pass's ``need``). ``settings.light_guide``: the photons are shared out among the lights
     and the leaves of their quadtrees by the yield the probe shoot measured
-    (:mod:`mi_twopass.prepass.light_guide`)."""
-    power, adapt_dim = probe_emitters(scene, seed, bounds)
+    (:mod:`mi_twopass.prepass.light_guide`). ``measured``: the emitters' power and the probe
+    shoot taken from there (:class:`ProbeMemo`), not measured again."""
+    if measured is not None:
+        power, adapt_dim = measured.power, measured.adapt_dim
+    else:
+        power, adapt_dim = probe_emitters(scene, seed, bounds)
     stats = {"emitters": len(power)}
     photons = settings.photons
     guide = None
-    if photons <= 0 or settings.light_guide:
+    if measured is not None:
+        guide, visible_rate, all_rate, probe_records = measured.probe
+    elif photons <= 0 or settings.light_guide:
         guide, visible_rate, all_rate, probe_records = probe_shoot(
             scene, tables, seen_rex, settings, seed, power, adapt_dim, keep_direct)
     if photons <= 0:
@@ -1537,12 +1591,12 @@ def plan_shoot(scene, tables, seen_rex, settings, seed, bounds, keep_direct, nee
 
 
 def light_pass(scene, tables, seen_rex, settings, seed, bounds, keep_direct, need=None,
-               show_progress=True):
-    """Plan the shoot (:func:`plan_shoot`), then shoot the final photons; returns records and
-    stats."""
+               show_progress=True, measured: ProbeMeasure | None = None):
+    """Plan the shoot (:func:`plan_shoot`; ``measured``: its probe shoot), then shoot the
+    final photons; returns records and stats."""
     t0 = time.perf_counter()
     shoot, pilot_rays, plan = plan_shoot(scene, tables, seen_rex, settings, seed, bounds,
-                                         keep_direct, need)
+                                         keep_direct, need, measured)
     stats = {"light_rays": 0, "pilot_rays": 0, "photons": 0, "light_hit_percent": 0.0,
              "retraced_batches": 0,
              "light_tree_leaves": 0, "light_tree_max_level": 0, **plan}
@@ -2067,21 +2121,32 @@ def check_no_media(scene):
 
 
 def build(scene, settings: RexSettings, seed: int = 0, progress: bool = True,
-          sensor=None) -> RexPrepass:
+          sensor=None, memo: ProbeMemo | None = None) -> RexPrepass:
     """Size pass, light pass and rex build for ``scene`` (all random numbers from ``seed``);
     ``progress``: a bar over the light pass's photons (on a terminal); ``sensor``: the camera
-    the size pass sizes the rexes for (default: the scene's first)."""
+    the size pass sizes the rexes for (default: the scene's first); ``memo``: the size pass
+    and probe shoot taken from there where a build of the same scene and camera measured them
+    (:class:`ProbeMemo`: ``plan_reused`` in the stats), else measured and put there; only
+    the final photons are then this build's (from ``seed``)."""
     if settings.direct not in ("rex", "shadow"):
         raise ValueError(f"direct={settings.direct!r}: expected 'rex' or 'shadow'")
     check_no_media(scene)
     t0 = time.perf_counter()
-    tables = RexTables(scene)
+    measured = None
+    if memo is not None:
+        reused = memo.get(settings, sensor) is not None
+        measured = measure_probe(scene, settings, seed, sensor, memo)
+        tables, cap, seen, need = measured.tables, measured.cap, measured.seen, measured.need
+        size_rays = 0 if reused else measured.size_rays
+    else:
+        reused = False
+        tables = RexTables(scene)
+        cap, seen, size_rays, need = size_pass(scene, tables, settings, seed, sensor)
     warn_short_bbox(scene, tables.bounds)
-    cap, seen, size_rays, need = size_pass(scene, tables, settings, seed, sensor)
     dr.sync_thread()
     t1 = time.perf_counter()
     records, light_stats = light_pass(scene, tables, seen, settings, seed, tables.bounds,
-                                      settings.direct == "rex", need, progress)
+                                      settings.direct == "rex", need, progress, measured)
     t2 = time.perf_counter()
     rexes = build_rex_tree(tables, records, cap, settings, scene, seed)
     dr.sync_thread()
@@ -2091,5 +2156,6 @@ def build(scene, settings: RexSettings, seed: int = 0, progress: bool = True,
                  rex_build_seconds=t3 - t2, rexes=tables.count, rex_nodes=rexes.n_nodes,
                  rex_leaves=rexes.n_leaves, rex_max_depth=rexes.max_depth,
                  photon_records=int(len(records["rex"])), exposure_rays=rexes.exposure_rays,
-                 prepass_rays=size_rays + light_stats["light_rays"] + rexes.exposure_rays)
+                 prepass_rays=size_rays + light_stats["light_rays"] + rexes.exposure_rays,
+                 plan_reused=reused)
     return RexPrepass(tables, rexes, cap, seen, settings, stats)

@@ -124,11 +124,12 @@ def path_variance(scene, measure: R.ProbeMeasure) -> tuple[float, float]:
     return relvar, share
 
 
-def measure(scene, settings, seed: int = 0, sensor=None) -> SharpLight:
+def measure(scene, settings, seed: int = 0, sensor=None, memo=None) -> SharpLight:
     """The size pass and probe shoot of rex's photon budget
-    (:func:`~mi_twopass.prepass.rex_textures.measure_probe`), read twice: the photons the
-    image needs and path's predicted variance on sharp light."""
-    m = R.measure_probe(scene, settings, seed, sensor)
+    (:func:`~mi_twopass.prepass.rex_textures.measure_probe`; ``memo``: a
+    :class:`~mi_twopass.prepass.rex_textures.ProbeMemo` the builds that follow read it from),
+    read twice: the photons the image needs and path's predicted variance on sharp light."""
+    m = R.measure_probe(scene, settings, seed, sensor, memo)
     photons = settings.photons if settings.photons > 0 else \
         R.photon_need(m.need, settings, m.power, *m.probe, tables=m.tables)[0]
     relvar, share = path_variance(scene, m)

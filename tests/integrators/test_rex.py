@@ -380,6 +380,37 @@ def test_stats_reuse_debug_and_determinism():
     assert np.allclose(d + i, a, rtol=1e-4, atol=1e-6)
 
 
+def test_a_build_that_finds_its_plan_in_the_memo_is_the_build_that_measures_it():
+    """rex_textures.ProbeMemo: the size pass and probe shoot a photon-need measurement made
+    (twopass's light_paths) are the plan later builds of the same scene and camera read. At
+    the same seed the build is the one that measures its own plan, array for array; at
+    another photon count it still reads the plan (the key leaves the photons out) and traces
+    no size rays; at another seed only its photons differ."""
+    scene = mi.load_dict({"type": "scene", "sensor": top_camera(16), "floor": floor(),
+                          "light": {"type": "point", "position": [0, 0, 1],
+                                    "intensity": rgb(4.0)}})
+    sensor = scene.sensors()[0]
+    settings = RexSettings(photons=30_000)
+    memo = rex_textures.ProbeMemo()
+    measured = rex_textures.measure_probe(scene, RexSettings(), 3, sensor, memo)
+    assert len(memo) == 1
+    assert rex_textures.measure_probe(scene, settings, 3, sensor, memo) is measured
+    alone = build_rexes(scene, settings, 3, progress=False, sensor=sensor)
+    shared = build_rexes(scene, settings, 3, progress=False, sensor=sensor, memo=memo)
+    assert shared.stats["plan_reused"] and not alone.stats["plan_reused"]
+    assert shared.stats["size_rays"] == 0 < alone.stats["size_rays"]
+    assert shared.cap is measured.cap and np.array_equal(shared.cap, alone.cap)
+    for name in ("count", "E_direct", "E_indirect"):
+        assert np.array_equal(np.asarray(getattr(shared.rexes, name)),
+                              np.asarray(getattr(alone.rexes, name))), name
+    other = build_rexes(scene, settings, 4, progress=False, sensor=sensor, memo=memo)
+    assert other.stats["plan_reused"] and other.cap is measured.cap
+    assert not np.array_equal(np.asarray(other.rexes.E_direct),
+                              np.asarray(alone.rexes.E_direct))  # its own photons
+    memo.clear()
+    assert len(memo) == 0
+
+
 # ---------------------------------------------------------------------------------------------
 # Regression against path
 # ---------------------------------------------------------------------------------------------

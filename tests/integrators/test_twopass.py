@@ -365,3 +365,26 @@ def test_a_plain_path_render_is_mitsubas_path_where_that_is_the_same_estimator()
     assert component_path().mitsuba_path_is_the_same(scene)
     assert not component_path(component="direct").mitsuba_path_is_the_same(scene)
     assert not component_path().mitsuba_path_is_the_same(mi.load_dict(hs.box(scale=1e-3)))
+
+
+def test_a_cut_rex_and_its_twin_read_the_plan_the_photon_need_measured():
+    """Within one twopass prepass the rex size pass and probe shoot are made once, for the
+    photon need (``cost.light_paths``), and every rex build of the scene and camera reads
+    them (``rex_textures.ProbeMemo``): the cut build the pilot measures, its twin, any
+    rebuild. The memo is emptied once the choice is made."""
+    scene = mi.load_dict(hs.box())
+    tp = mi.load_dict({"type": "twopass", "direct": "emitter", "indirect": "rex",
+                       "caustics": "rex", "pilot_budget": 1e6})
+    rex_row = next(c for c in cost.COMPOSITIONS if c.plugin == "rex")
+    need = tp.candidate(rex_row).photon_budget(scene, 0, scene.sensors()[0])
+    assert len(tp._probe_memo) == 1
+    builds = []
+    for photons, offset in ((1 << 16, 0), (1 << 17, 0x7717)):
+        integ = tp.candidate(rex_row, photons=photons, seed_offset=offset)
+        integ.ensure_prepass(scene, 0, scene.sensors()[0])
+        builds.append(integ)
+    assert need > 0 and all(b._prepass_stats["plan_reused"] for b in builds)
+    assert all(b._prepass_stats["size_rays"] == 0 for b in builds)
+    assert builds[0].structure.cap is builds[1].structure.cap
+    render(scene, tp, spp=16)
+    assert len(tp._probe_memo) == 0
