@@ -267,7 +267,9 @@ class RexIntegrator(TwoPassIntegrator):
     scene), ``light_tree_leaves``, ``light_tree_max_level``, ``rex_leaves``, ``rex_nodes``,
     ``rex_max_depth``, ``rexes``, ``size_rays``, ``exposure_rays``, ``eye_rays`` (camera,
     continuation and shadow rays of the eye pass), ``size_seconds``, ``light_seconds``,
-    ``rex_build_seconds`` and ``cache_bytes``.
+    ``rex_build_seconds``, ``cache_bytes`` and ``plan_reused`` (inside ``twopass``: the size
+    pass and probe shoot were read from another build of the same prepass, and ``size_rays``
+    is then 0).
 
     Every emitter Mitsuba can ``sample_ray`` (or, infinite, ``sample_direction``) is handled
     (point, spot, area, directional, constant, envmap, sunsky, ...); a scene without emitters
