@@ -209,11 +209,8 @@ class TwoPassChooser(TwoPassIntegrator):
         key = (c.plugin, c.props, photons, seed_offset)
         if twin and c.plugin != "path":
             extra = {"photons": int(photons)} if photons > 0 else {}
-            twin_integ = mi.load_dict({"type": c.plugin, **self._common_props(),
-                                       **dict(c.props), **extra})
-            twin_integ.radiosity_memo = self._radiosity_memo
-            twin_integ.probe_memo = self._probe_memo
-            return twin_integ
+            return self._sharing(mi.load_dict({"type": c.plugin, **self._common_props(),
+                                               **dict(c.props), **extra}))
         if key not in self._candidates:
             if c.plugin == "path":
                 props = mi.Properties()
@@ -224,11 +221,16 @@ class TwoPassChooser(TwoPassIntegrator):
                 extra = {"photons": int(photons)} if photons > 0 else {}
                 props = self._common_props()
                 props["seed"] = (int(props["seed"]) + int(seed_offset)) % (1 << 31)
-                self._candidates[key] = mi.load_dict(
-                    {"type": c.plugin, **props, **dict(c.props), **extra})
-                self._candidates[key].radiosity_memo = self._radiosity_memo
-                self._candidates[key].probe_memo = self._probe_memo
+                self._candidates[key] = self._sharing(mi.load_dict(
+                    {"type": c.plugin, **props, **dict(c.props), **extra}))
         return self._candidates[key]
+
+    def _sharing(self, integ):
+        """``integ`` given the memos the candidates of one prepass share: radiosity solves
+        (``SolveMemo``) and rex plans (``ProbeMemo``)."""
+        integ.radiosity_memo = self._radiosity_memo
+        integ.probe_memo = self._probe_memo
+        return integ
 
     # -- prepass: pilot, then the structures that pay ---------------------------------------
     def prepass(self, scene, seed):
