@@ -3,10 +3,12 @@
     python -m mi_twopass render SCENE.xml -o out.exr [--integrator T] [-D key=value] [--spp N]
                                 [--variant V] [--seed S] [--reference]
     python -m mi_twopass compare SCENE.xml --integrators path,radiosity_gather --budget 10
+                                 [--repeats N] [--repeat-below S]
     python -m mi_twopass check SCENE.xml [--integrators a,b] [--spp 64] [--res PX] [--renders 2]
                                [--ref-spp N] [-D key=value] [--json PATH]
     python -m mi_twopass bench [SCENE.xml ...] [--corpus] [--integrators a,b] [--budget S]
                                [--res PX] [-D key=value] [--ref-spp N] [-o benchmarks]
+                               [--repeats N] [--repeat-below S]
     python -m mi_twopass bench --sweep [64,128,...] [SCENE.xml ...] [--integrators a,b]
                                [--budget S] [--ref-spp N] [-o benchmarks]
     python -m mi_twopass bench --cold [SCENE.xml] [--integrators a,b] [--res PX] [--spp N]
@@ -75,6 +77,7 @@ def build_parser():
     c.add_argument("--budget", type=float, default=10.0, help="seconds per integrator")
     c.add_argument("--ref-spp", type=int, default=None)
     c.add_argument("-o", "--output-dir", default="out/compare")
+    _add_repeat_args(c)
 
     k = sub.add_parser("check", help="each integrator against the path reference: mean ratio "
                                      "and 8x8-block relMSE, OUT of bounds marked")
@@ -122,6 +125,7 @@ def build_parser():
     b.add_argument("-o", "--output-dir", default=None, help="output folder (default benchmarks/)")
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--variant", default=None, help="Mitsuba variant (default llvm_ad_rgb)")
+    _add_repeat_args(b)
     b.add_argument(
         "--sweep", nargs="?", const="64,128,256,512,1024", default=None, metavar="SIZES",
         help="resolution sweep instead (mi_twopass/evaluation/sweep.py): the harness on each "
@@ -152,6 +156,30 @@ def build_parser():
     d.add_argument("--spp", type=int, default=64)
     d.add_argument("-o", "--output", default="out/demo.exr")
     return parser
+
+
+def _add_repeat_args(p):
+    """``--repeats`` and ``--repeat-below`` of the harness's curves (``compare``, ``bench``;
+    :func:`mi_twopass.evaluation.harness.timed_point`)."""
+    p.add_argument("--repeats", type=int, default=None, metavar="N",
+                   help="render a point that took less than --repeat-below seconds N times "
+                        "in all (fresh integrators, the same seed) and keep the run of the "
+                        "median time, its image with it (default 3; 1: every point once)")
+    p.add_argument("--repeat-below", type=float, default=None, metavar="SECONDS",
+                   help="points faster than this are repeated (default 1.0)")
+
+
+def _repeat_options(args) -> dict:
+    """``{repeats, repeat_below}`` of the command line, defaults filled; a value ≤ 0 is an
+    error."""
+    from .evaluation import harness
+
+    for option, value in (("--repeats", args.repeats), ("--repeat-below", args.repeat_below)):
+        if value is not None and value <= 0:
+            raise CLIError(f"{option} {value}: must be > 0")
+    return {"repeats": harness.DEFAULT_REPEATS if args.repeats is None else args.repeats,
+            "repeat_below": harness.REPEAT_BELOW_SECONDS if args.repeat_below is None
+            else args.repeat_below}
 
 
 def _add_prepass_args(b):
@@ -388,9 +416,10 @@ def compare_command(args, out=print):
     specs = _specs(args.integrators, "--integrators")
     if not any(s.split(":")[0] == "path" for s in specs):
         specs.insert(0, "path")  # the baseline is always measured in the same run
+    repeat = _repeat_options(args)
     out(f"compare {args.scene} {params} budget {args.budget} s per integrator")
     curves = harness.run_compare(args.scene, specs, args.budget, params,
-                                 ref_spp=_ref_spp(args), seed=args.seed, log=out)
+                                 ref_spp=_ref_spp(args), seed=args.seed, log=out, **repeat)
     out("")
     out(harness.format_table(curves))
     stem = os.path.splitext(os.path.basename(args.scene))[0]
@@ -466,6 +495,9 @@ def bench_command(args, out=print):
     _no_prepass_options(args)
     if args.sweep is not None and args.cold:
         raise CLIError("--sweep and --cold: choose one")
+    for option, value in (("--repeats", args.repeats), ("--repeat-below", args.repeat_below)):
+        if value is not None and (args.sweep is not None or args.cold):
+            raise CLIError(f"{option}: only for the bench's curves (not with --sweep or --cold)")
     if args.spp is not None and not args.cold:
         raise CLIError(f"--spp {args.spp}: only with --cold (the harness doubles spp itself)")
     if args.sweep is not None:
@@ -485,10 +517,11 @@ def bench_command(args, out=print):
     specs = _specs(args.integrators or ",".join(bench.suite_integrators()), "--integrators")
     if not any(s.split(":")[0] == "path" for s in specs):
         specs.insert(0, "path")  # the baseline is always measured in the same run
+    repeat = _repeat_options(args)
     _make_folder(os.path.join(out_dir, "results.md"), "-o")
     return bench.run_bench(unique, specs, budget=budget, res=res, params=params,
                            ref_spp=_ref_spp(args), seed=args.seed, out_dir=out_dir,
-                           argv=getattr(args, "argv", ()), log=out)
+                           argv=getattr(args, "argv", ()), log=out, **repeat)
 
 
 def bench_sweep_command(args, out=print):

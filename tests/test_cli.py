@@ -131,7 +131,8 @@ def test_missing_scene_is_a_clear_error(tmp_path, capsys):
 def test_compare_prints_table_and_writes_plot(tiny_scene_file, tmp_path, ref_cache, capsys):
     outdir = tmp_path / "cmp"
     code = cli.main(["compare", tiny_scene_file, "--integrators", "path,path:max_depth=2",
-                     "--budget", "1.5", "-D", "res=8", "--ref-spp", "256", "-o", str(outdir)])
+                     "--budget", "1.5", "-D", "res=8", "--ref-spp", "256", "-o", str(outdir),
+                     "--repeats", "2"])
     assert code == 0
     text = capsys.readouterr().out
     assert "equal-time ratio" in text and "path:max_depth=2" in text
@@ -139,6 +140,7 @@ def test_compare_prints_table_and_writes_plot(tiny_scene_file, tmp_path, ref_cac
     pts = data["curves"]["path"]["points"]
     assert len(pts) >= 2 and [p["spp"] for p in pts][:2] == [1, 2]
     assert all(p["relmse"] > 0 and p["seconds"] > 0 for p in pts)
+    assert all(len(p["stats"]["repeat_seconds"]) == 2 for p in pts)  # --repeats 2, all short
     assert (outdir / "tiny.png").stat().st_size > 1000
 
 

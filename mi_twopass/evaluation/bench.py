@@ -17,7 +17,11 @@ timed; ``path`` is always measured, it is the baseline). Written into the output
 
 Run time. An integrator costs at most its budget (the harness stops before a point that, at
 about twice the last, would overrun it; it usually spends 60-90 % of it) plus an untimed 1-spp
-warm-up and the error metrics, :data:`OVERHEAD_SECONDS` (4 s) together. References are rendered
+warm-up and the error metrics, :data:`OVERHEAD_SECONDS` (4 s) together. A point faster than
+:data:`~mi_twopass.evaluation.harness.REPEAT_BELOW_SECONDS` (1 s) is rendered
+:data:`~mi_twopass.evaluation.harness.DEFAULT_REPEATS` (3) times and the run of median time kept
+(``--repeats``; the budget counts the kept run): the points under 1 s of a doubling curve sum to
+under 2 s, so their repeats add under 4 s per integrator. References are rendered
 once and cached (``$MI_TWOPASS_CACHE``, else ``.cache/references``): ``path`` at 4096 spp and
 128² takes 8-41 s per corpus scene on a 2-core AMD EPYC, 188 s for the seven,
 :data:`REFERENCE_SECONDS_PER_SCENE` (30 s) a scene in the estimate. Default run, 7 scenes ×
@@ -438,9 +442,12 @@ def scene_settings(scene_path, res: int, params: dict):
 
 
 def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: dict,
-                ref_spp: int, seed: int, out_dir: str, counter, log=print, detail=None) -> dict:
+                ref_spp: int, seed: int, out_dir: str, counter, log=print, detail=None,
+                repeats: int = 1, repeat_below: float = harness.REPEAT_BELOW_SECONDS) -> dict:
     """Run every integrator on one scene; write ``<name>.json``, ``<name>.png`` and
     ``<name>_images.png``; return the scene's entry of bench.json (curves, rows, files).
+    ``repeats``, ``repeat_below``: short points timed more than once
+    (:func:`mi_twopass.evaluation.harness.timed_point`).
 
     An integrator that refuses the scene (or fails) gets a row saying so and the run goes on;
     ``counter``: [done, total] of (scene, integrator) pairs, for the progress lines."""
@@ -455,7 +462,7 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
 
     curves, failures, walls, baseline = run_integrators(
         scene_path, specs, name, budget, params, ref_spp, seed, counter, log, detail,
-        film_res=film_res, on_curve=keep_image)
+        film_res=film_res, on_curve=keep_image, repeats=repeats, repeat_below=repeat_below)
     reference = reference_image(scene_path, params, spp=ref_spp, film_res=film_res)
     h, w = reference.shape[:2]
     label = f"{name} ({w}×{h})"
@@ -493,9 +500,13 @@ def bench_scene(scene_path, name: str, specs, budget: float, res: int, params: d
 
 def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_RES,
               params: dict | None = None, ref_spp: int | None = None, seed: int = 0,
-              out_dir: str = DEFAULT_OUTPUT_DIR, argv=(), log=print) -> dict:
+              out_dir: str = DEFAULT_OUTPUT_DIR, argv=(), log=print, repeats: int = 1,
+              repeat_below: float = harness.REPEAT_BELOW_SECONDS) -> dict:
     """Run the bench (module docstring) and write its files into ``out_dir``; returns the
-    content of bench.json. ``specs`` should start with ``path`` (the baseline)."""
+    content of bench.json. ``specs`` should start with ``path`` (the baseline); ``repeats``,
+    ``repeat_below``: short points timed more than once
+    (:func:`mi_twopass.evaluation.harness.timed_point`; the command's default is
+    :data:`~mi_twopass.evaluation.harness.DEFAULT_REPEATS`)."""
     from .reference import DEFAULT_REFERENCE_SPP
 
     ref_spp = ref_spp or DEFAULT_REFERENCE_SPP
@@ -507,6 +518,7 @@ def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_
             "command": command_line(argv), "cwd": os.getcwd(), "python": sys.executable,
             **software_info(), "budget": budget, "res": res, "defines": params,
             "ref_spp": ref_spp, "seed": seed, "integrators": list(specs),
+            "repeats": repeats, "repeat_below": repeat_below,
             "cache": os.environ.get("MI_TWOPASS_CACHE") or "(default: .cache/references)"}
     m = info["machine"]
     log(f"bench: {len(scenes)} scenes × {len(specs)} integrators, budget {budget:g} s each, "
@@ -525,7 +537,8 @@ def run_bench(scenes, specs, budget: float = DEFAULT_BUDGET, res: int = DEFAULT_
         for path, name in zip(scenes, names):
             detail(f"{name}: {path}")
             entries[name] = bench_scene(path, name, specs, budget, res, params, ref_spp, seed,
-                                        out_dir, counter, log=log, detail=detail)
+                                        out_dir, counter, log=log, detail=detail,
+                                        repeats=repeats, repeat_below=repeat_below)
             # rewritten after every scene: a run stopped early leaves the table of what it did
             write_report(out_dir, info, entries, time.perf_counter() - t0, len(scenes))
     log(f"wrote {out_dir}/results.md, bench.json, bench.log and per scene <scene>.json, "
@@ -545,7 +558,10 @@ def write_report(out_dir: str, info: dict, entries: dict, wall_seconds: float,
     with open(os.path.join(out_dir, "bench.json"), "w") as f:
         json.dump(info, f, indent=1, default=_json_default)
     state = "took" if done else f"partial: {len(entries)} of {n_scenes} scenes in"
-    header = (f"Bench of {run_label(info)}; {state} {_duration(wall_seconds)}. "
+    repeats = info.get("repeats", 1)
+    timing = (f" Points under {info.get('repeat_below', harness.REPEAT_BELOW_SECONDS):g} s: "
+              f"median of {repeats} runs, each run's image with its time." if repeats > 1 else "")
+    header = (f"Bench of {run_label(info)}; {state} {_duration(wall_seconds)}.{timing} "
               f"Command: `{info['command']}`")
     rows = [r for e in entries.values() for r in e["rows"]]
     with open(os.path.join(out_dir, "results.md"), "w") as f:

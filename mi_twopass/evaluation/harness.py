@@ -7,6 +7,12 @@ untimed 1-spp warm-up so Dr.Jit's kernel compilation is not charged to the first
 same for every integrator; ``twopass`` plans it as a long render, :func:`warm_up`). Error is
 relMSE (ε = 0.01) and FLIP against Mitsuba's ``path`` at high spp (cached). Points stop when the next one (about twice the last) would not fit in the budget.
 
+Short points can be timed more than once (``repeats``, :func:`timed_point`): a point faster
+than ``repeat_below`` seconds is rendered ``repeats`` times, each with a fresh integrator and
+the same seed, and the point is the run of the median time, its image and its time together
+(``twopass`` decides from its own timings, so its repeats may render different images; the
+point is one run as a user would get it, not the fastest time beside another run's error).
+
 Reported per integrator: the (time, relMSE, FLIP) curve; the equal-time relMSE ratio against
 ``path`` measured in the same run (path's error at the method's time, interpolated log-log, over
 the method's); the time to reach relMSE 0.01 (log-log interpolation between bracketing points);
@@ -86,6 +92,37 @@ def timed_render(scene, spec: str, spp: int, seed: int):
 
 #: the samples per pixel ``twopass``'s warm-up plans for (:func:`warm_up`)
 WARM_UP_PLANNED_SPP = 4096
+
+
+#: ``bench``'s default repeats of a short point (:func:`timed_point`)
+DEFAULT_REPEATS = 3
+#: a point is repeated only where its first render took less than this many seconds: where a
+#: curve crosses relMSE 0.01 in under a second, single timings moved cells by 10–40 % between
+#: runs of one commit on the 2-core machine (session 35: twopass's 16-spp point on tut-cbox,
+#: the same image, took 0.565, 0.577, 0.592 and 0.637 s); longer points vary less and cost more
+REPEAT_BELOW_SECONDS = 1.0
+
+
+def timed_point(scene, spec: str, spp: int, seed: int, reference, repeats: int = 1,
+                repeat_below: float = REPEAT_BELOW_SECONDS) -> tuple[Point, np.ndarray]:
+    """``(point, image)``: one point of a curve. :func:`timed_render` once, and where that
+    took less than ``repeat_below`` seconds, ``repeats`` − 1 times more (fresh integrators,
+    the same seed). The point is the run of the median time (the lower of the middle two for
+    an even count): its image, and that image's metrics with its own seconds. With repeats
+    its ``stats`` also hold ``repeat_seconds`` and ``repeat_relmse`` (every run's, in order)
+    and ``repeat_kept`` (the index of the run kept)."""
+    runs = [timed_render(scene, spec, spp, seed)]
+    if repeats > 1 and runs[0][1] < repeat_below:
+        runs += [timed_render(scene, spec, spp, seed) for _ in range(repeats - 1)]
+    by_time = sorted(range(len(runs)), key=lambda i: runs[i][1])
+    kept = by_time[(len(runs) - 1) // 2]
+    image, seconds, stats = runs[kept]
+    m = metrics.all_metrics(image, reference)
+    if len(runs) > 1:
+        stats = dict(stats, repeat_seconds=[r[1] for r in runs],
+                     repeat_relmse=[metrics.relmse(r[0], reference) for r in runs],
+                     repeat_kept=kept)
+    return Point(spp, seconds, m["relmse"], m["flip"], m["mse"], stats), image
 
 
 def warm_up(scene, spec: str, seed: int):
@@ -187,13 +224,15 @@ def summarise(curves: dict, baseline: str = "path", target=TARGET_RELMSE) -> Non
 
 def run_compare(scene_path, integrators, budget: float, params: dict | None = None,
                 ref_spp: int = DEFAULT_REFERENCE_SPP, seed: int = 0, max_spp: int = 1 << 16,
-                log=print, film_res: int | None = None, on_curve=None) -> dict:
+                log=print, film_res: int | None = None, on_curve=None, repeats: int = 1,
+                repeat_below: float = REPEAT_BELOW_SECONDS) -> dict:
     """Run the harness; returns {label: Curve} with summaries filled.
 
     ``film_res``: the film's longer side in pixels for scene and reference (see
     :func:`~mi_twopass.scenefile.load_scene`; for scenes without a ``$res`` parameter).
     ``on_curve(spec, curve, image)``: called once per integrator when its points are done,
-    ``image`` being its render at the largest spp (before the summaries are filled)."""
+    ``image`` being its render at the largest spp (before the summaries are filled).
+    ``repeats``, ``repeat_below``: short points timed more than once (:func:`timed_point`)."""
     params = dict(params or {})
     reference = reference_image(scene_path, params, spp=ref_spp, verbose=True, film_res=film_res)
     scene = load_scene(scene_path, film_res=film_res, **params)
@@ -202,12 +241,16 @@ def run_compare(scene_path, integrators, budget: float, params: dict | None = No
         warm_up(scene, spec, seed + 999_983)  # compile kernels, untimed
         points, spent, spp = [], 0.0, 1
         while spp <= max_spp:
-            image, seconds, stats = timed_render(scene, spec, spp, seed + spp)
-            m = metrics.all_metrics(image, reference)
-            points.append(Point(spp, seconds, m["relmse"], m["flip"], m["mse"], stats))
+            point, image = timed_point(scene, spec, spp, seed + spp, reference, repeats,
+                                       repeat_below)
+            points.append(point)
+            seconds = point.seconds
             spent += seconds
-            log(f"  {spec:<28} spp {spp:>6}  {seconds:8.3f} s  relMSE {m['relmse']:.3e}  "
-                f"FLIP {m['flip']:.4f}")
+            times = point.stats.get("repeat_seconds")
+            median = "" if times is None else \
+                "  (median of " + ", ".join(f"{t:.3f}" for t in times) + " s)"
+            log(f"  {spec:<28} spp {spp:>6}  {seconds:8.3f} s  relMSE {point.relmse:.3e}  "
+                f"FLIP {point.flip:.4f}{median}")
             if spent + 2.2 * seconds > budget:
                 break
             spp *= 2

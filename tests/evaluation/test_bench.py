@@ -96,6 +96,14 @@ def test_bench_writes_table_plots_images_and_json(tiny_scene_file, tmp_path, ref
     assert [p["spp"] for p in pts] == [2**k for k in range(len(pts))]
     assert all(p["seconds"] > 0 and p["relmse"] > 0 and p["stats"]["prepass_seconds"] > 0
                for p in pts)
+    # by default a point under a second is three runs, and the point is the median one
+    assert data["repeats"] == 3 and data["repeat_below"] == 1.0
+    assert "median of 3" in first
+    for p in pts:
+        times = p["stats"]["repeat_seconds"]
+        assert len(times) == 3 and p["seconds"] == sorted(times)[1]
+        assert p["seconds"] == times[p["stats"]["repeat_kept"]]
+        assert p["relmse"] == pytest.approx(p["stats"]["repeat_relmse"][p["stats"]["repeat_kept"]])
     assert scene["rows"][0]["speedup"] in (None, 1.0)
     share = pts[-1]["stats"]["prepass_seconds"] / pts[-1]["seconds"]
     assert scene["rows"][1]["prepass_share"] == pytest.approx(share)
@@ -127,7 +135,8 @@ def test_an_integrator_refusing_a_scene_is_a_row_and_the_run_goes_on(
     assert "refused" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("case", ["integrator", "missing_scene", "budget", "malformed"])
+@pytest.mark.parametrize("case", ["integrator", "missing_scene", "budget", "malformed",
+                                  "repeats", "repeats_sweep"])
 def test_mistakes_are_one_error_line(case, tiny_scene_file, tmp_path, capsys):
     bad = tmp_path / "bad.xml"
     bad.write_text('<scene version="3.0.0"><shape type="sphere"></scene>')
@@ -137,6 +146,8 @@ def test_mistakes_are_one_error_line(case, tiny_scene_file, tmp_path, capsys):
         "missing_scene": [tiny_scene_file, str(tmp_path / "nope.xml")],
         "budget": [tiny_scene_file, "--budget", "0"],
         "malformed": [tiny_scene_file, str(bad)],
+        "repeats": [tiny_scene_file, "--repeats", "0"],
+        "repeats_sweep": [tiny_scene_file, "--sweep", "16", "--repeats", "3"],
     }[case]
     code = cli.main(["bench", *argv, "-o", str(out)])
     err = capsys.readouterr().err
@@ -145,7 +156,9 @@ def test_mistakes_are_one_error_line(case, tiny_scene_file, tmp_path, capsys):
     assert {"integrator": "no integrator named 'nope'",
             "missing_scene": "scene file not found",
             "budget": "--budget 0.0: must be > 0",
-            "malformed": "malformed XML"}[case] in err
+            "malformed": "malformed XML",
+            "repeats": "--repeats 0: must be > 0",
+            "repeats_sweep": "--repeats: only for the bench's curves"}[case] in err
     assert not out.exists()  # nothing rendered, nothing written
 
 

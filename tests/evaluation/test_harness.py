@@ -55,6 +55,52 @@ def test_a_held_up_point_of_path_does_not_bend_the_equal_time_ratios():
     assert curves["x"].summary["equal_time_ratio"] == pytest.approx(2.0)
 
 
+def _scripted_renders(monkeypatch, seconds):
+    """``harness.timed_render`` replaced by renders whose times are ``seconds`` in turn and
+    whose images are constant, run k's value k + 1; returns the calls' arguments."""
+    calls = []
+
+    def render(scene, spec, spp, seed):
+        k = len(calls)
+        calls.append((spec, spp, seed))
+        return np.full((2, 2, 3), k + 1.0, np.float32), seconds[k], {"run": k}
+
+    monkeypatch.setattr(harness, "timed_render", render)
+    return calls
+
+
+def test_a_short_point_is_the_run_of_median_time_with_its_own_image(monkeypatch):
+    calls = _scripted_renders(monkeypatch, [0.5, 0.2, 0.4])
+    ref = np.ones((2, 2, 3), np.float32)
+    point, image = harness.timed_point(None, "twopass", 16, 7, ref, repeats=3,
+                                       repeat_below=1.0)
+    assert calls == [("twopass", 16, 7)] * 3  # the same seed every time
+    assert point.seconds == 0.4 and point.stats["run"] == 2  # the median run, not the fastest
+    assert np.all(image == 3.0)
+    # its metrics are its own image's: (3 − 1)² / (1 + ε)
+    assert point.relmse == pytest.approx(4.0 / 1.01)
+    assert point.stats["repeat_seconds"] == [0.5, 0.2, 0.4]
+    assert point.stats["repeat_relmse"] == pytest.approx([0.0, 1 / 1.01, 4 / 1.01])
+    assert point.stats["repeat_kept"] == 2
+
+
+def test_a_long_point_and_a_single_repeat_render_once(monkeypatch):
+    ref = np.ones((2, 2, 3), np.float32)
+    calls = _scripted_renders(monkeypatch, [1.5, 0.1, 0.1])
+    point, _ = harness.timed_point(None, "path", 256, 0, ref, repeats=3, repeat_below=1.0)
+    assert len(calls) == 1 and point.seconds == 1.5 and "repeat_seconds" not in point.stats
+    calls = _scripted_renders(monkeypatch, [0.3, 0.1])
+    point, _ = harness.timed_point(None, "path", 1, 0, ref, repeats=1)
+    assert len(calls) == 1 and point.seconds == 0.3
+
+
+def test_an_even_count_keeps_the_lower_of_the_middle_two(monkeypatch):
+    _scripted_renders(monkeypatch, [0.3, 0.2])
+    ref = np.ones((2, 2, 3), np.float32)
+    point, _ = harness.timed_point(None, "path", 1, 0, ref, repeats=2, repeat_below=1.0)
+    assert point.seconds == 0.2 and point.stats["repeat_kept"] == 1
+
+
 def test_warm_up_builds_what_a_long_twopass_render_builds():
     """At 1 spp twopass renders path with no pilot; its warm-up plans for a long render, so
     the pilot and the structures it builds are compiled before the timed points (128² px:
