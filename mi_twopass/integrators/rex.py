@@ -190,7 +190,10 @@ class RexIntegrator(TwoPassIntegrator):
     ``sample_ray``. A photon's weight at a non-delta bounce is the BSDF evaluated with the new
     direction on the eye side (the adjoint of what ``path`` integrates), exact for BSDFs that
     are not symmetric too (normal and bump maps: the shading-normal correction with the
-    surface's own normal left photons off a normal-mapped wall 4.5 % too bright). The rays rex
+    surface's own normal left photons off a normal-mapped wall 4.5 % too bright), over the
+    sample's own density; a sample Mitsuba's sampling discards (weight 0: a rough dielectric's
+    microfacet event that lands on the other side) ends the photon, as it ends Mitsuba's own
+    paths (``photon_scatter_weight``). The rays rex
     spawns (photons, eye continuations, shadow rays) are offset relative to the scene's size
     (:mod:`mi_twopass.rays`), not by Mitsuba's absolute ≥ 89 µm: the image of a 0.2 mm
     Cornell box is that of the 2 m one (Mitsuba's own ``path`` gives 0.90× of it), shadows of
