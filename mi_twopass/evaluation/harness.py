@@ -94,7 +94,8 @@ def timed_render(scene, spec: str, spp: int, seed: int):
 WARM_UP_PLANNED_SPP = 4096
 
 
-#: ``bench``'s default repeats of a short point (:func:`timed_point`)
+#: the default repeats of a short point for ``bench`` and ``compare`` (:func:`timed_point`;
+#: :func:`run_compare` itself renders each point once unless asked)
 DEFAULT_REPEATS = 3
 #: a point is repeated only where its first render took less than this many seconds: where a
 #: curve crosses relMSE 0.01 in under a second, single timings moved cells by 10–40 % between
