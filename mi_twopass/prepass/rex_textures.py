@@ -744,9 +744,9 @@ def photon_scatter_weight(bsdf, si, bs, w, wi_geo, ctx_radiance):
     ``bsdf.pdf`` of the direction (every BSDF of the hard-case matrix, 65,536 samples each:
     relative difference ≤ 2.4e-4). Reading it saves a BSDF call per bounce but no time that
     could be measured: alternating builds of the old code and this, best of three each, read
-    the light pass on caustic.xml at 1.349 and 1.322 s against 1.325 and 1.315 s (a first
-    reading of 1.57 → 1.32 s was the machine's drift). Where Mitsuba's own
-    weight is 0 the sample is one its sampling discards, and so does the photon: a rough
+    the light pass on caustic.xml at 1.349 and 1.322 s against 1.325 and 1.315 s. Where
+    Mitsuba's own weight is 0 the sample is one its sampling discards, and so does the
+    photon: a rough
     dielectric's microfacet event whose direction lands on the other side (1.4 % of
     roughdielectric's glossy samples for incident directions uniform over the sphere) has a
     non-zero evaluation there, and weighting it by the density of the event that does reach
