@@ -20,8 +20,11 @@ about twice the last, would overrun it; it usually spends 60-90 % of it) plus an
 warm-up and the error metrics, :data:`OVERHEAD_SECONDS` (4 s) together. A point faster than
 :data:`~mi_twopass.evaluation.harness.REPEAT_BELOW_SECONDS` (1 s) is rendered
 :data:`~mi_twopass.evaluation.harness.DEFAULT_REPEATS` (3) times and the run of median time kept
-(``--repeats``; the budget counts the kept run): the points under 1 s of a doubling curve sum to
-under 2 s, so their repeats add under 4 s per integrator. References are rendered
+(``--repeats``; the budget counts the kept run). Where a curve's time doubles with its samples
+its points under 1 s sum to under 2 s, and their repeats add under 4 s; where a prepass
+dominates, several points sit just under a second (spike_gather on many_lights at 256²: four,
+0.85-1.02 s). The corpus bench at 256² took 26.4 min with repeats against 21.5-22.0 min
+without, about 4.5 s more per integrator. References are rendered
 once and cached (``$MI_TWOPASS_CACHE``, else ``.cache/references``): ``path`` at 4096 spp and
 128² takes 8-41 s per corpus scene on a 2-core AMD EPYC, 188 s for the seven,
 :data:`REFERENCE_SECONDS_PER_SCENE` (30 s) a scene in the estimate. Default run, 7 scenes ×
