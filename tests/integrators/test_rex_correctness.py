@@ -43,6 +43,7 @@ not tuned per scene.
 """
 import math
 import os
+import sys
 
 import drjit as dr
 import mitsuba as mi
@@ -55,6 +56,9 @@ from mi_twopass.prepass.rex_textures import RexSettings
 from mi_twopass.prepass.rex_textures import build as build_rexes
 from mi_twopass.scene.bounds import scene_bounds
 from mi_twopass.scene.lambertian import is_lambertian
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import hard_scenes as hs  # noqa: E402
 
 T = mi.ScalarTransform4f
 Z_MAX = 4.0
@@ -530,9 +534,6 @@ def test_a_photon_scatters_as_mitsuba_samples(name):
     """The photon's factor where it scatters (``photon_scatter_weight``): 0 wherever Mitsuba's
     own sample weight is 0, and elsewhere the adjoint evaluation over the density that
     ``bsdf.pdf`` gives the direction (the sample's own ``bs.pdf`` is read)."""
-    import sys
-    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    import hard_scenes as hs
     from mi_twopass.prepass.rex_textures import photon_scatter_weight
 
     bsdf = mi.load_dict(hs.bsdfs()[name])
