@@ -38,9 +38,9 @@ def test_first_run_replaces_a_repeated_point_by_its_first_render():
 
 
 def test_cells_are_read_from_the_kept_runs_and_from_the_first_runs():
-    versus = repeat_effect._summary_tool().versus_best
-    kept = repeat_effect.cells(entry(), lambda p: p, versus)
-    first = repeat_effect.cells(entry(), repeat_effect.first_run, versus)
+    summary = repeat_effect._summary_tool()
+    kept = repeat_effect.cells(entry(), lambda p: p, summary)
+    first = repeat_effect.cells(entry(), repeat_effect.first_run, summary)
     # kept: 0.02 at 0.5 s → 0.005 at 0.6 s, 0.01 at 0.5·1.2^0.5; rex the same to 0.8 s
     assert kept[0] == pytest.approx(0.5 * 1.2 ** 0.5)
     assert kept[1] == pytest.approx(4.0 / (0.5 * 1.2 ** 0.5))

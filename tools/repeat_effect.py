@@ -27,9 +27,6 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from mi_twopass.evaluation import harness  # noqa: E402
 from mi_twopass.evaluation.bench import table_row  # noqa: E402
 
-SUITE = ("radiosity_gather", "spike_gather", "rex", "radiance_cache")
-
-
 def _summary_tool():
     """tools/twopass_summary.py as a module (its :func:`versus_best`)."""
     path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "twopass_summary.py")
@@ -58,14 +55,15 @@ def rows(entry: dict, pick) -> dict:
             for spec, curve in curves.items()}
 
 
-def cells(entry: dict, pick, versus_best) -> tuple:
-    """(twopass t(0.01), twopass speed-up, twopass against the best single) of one scene."""
+def cells(entry: dict, pick, summary) -> tuple:
+    """(twopass t(0.01), twopass speed-up, twopass against the best single) of one scene
+    (``summary``: tools/twopass_summary.py, its suite and :func:`versus_best`)."""
     r = rows(entry, pick)
     tp = r.get("twopass")
     if tp is None:
         return None, None, "—"
-    cands = [r[i] for i in SUITE if i in r]
-    return tp["time_to_target"], tp["speedup"], versus_best(cands, tp)
+    cands = [r[i] for i in summary.SUITE if i in r]
+    return tp["time_to_target"], tp["speedup"], summary.versus_best(cands, tp)
 
 
 def spread(run: dict) -> tuple:
@@ -94,13 +92,13 @@ def main(argv=None):
     args = ap.parse_args(argv)
     with open(args.bench) as f:
         run = json.load(f)
-    versus_best = _summary_tool().versus_best
+    summary = _summary_tool()
     print("| scene | twopass t(0.01) s, kept / first runs | speed-up over path, kept / first "
           "runs | twopass / best single, kept / first runs |")
     print("| --- | --- | --- | --- |")
     for entry in run["scenes"].values():
-        kept = cells(entry, lambda p: p, versus_best)
-        first = cells(entry, first_run, versus_best)
+        kept = cells(entry, lambda p: p, summary)
+        first = cells(entry, first_run, summary)
         print(f"| {entry['label']} | {num(kept[0])} / {num(first[0])} | "
               f"{num(kept[1], '{:.2f}')} / {num(first[1], '{:.2f}')} | {kept[2]} / {first[2]} |")
     median, largest, off, n = spread(run)
